@@ -1,0 +1,12 @@
+"""One module per ``dng`` subcommand. Each defines ``register(subparsers)``.
+
+Command modules import only argparse-level things at import time; the work (and heavy
+libraries) is imported inside the handler, so ``dng --help`` stays fast.
+"""
+
+#: Subcommand modules in the order ``dng --help`` lists them. A module that is not there yet
+#: (a later issue's) is skipped.
+COMMANDS = (
+    "demo", "motion", "body", "garment", "proxy", "simulate", "dataset",
+    "train", "predict", "render", "finetune", "eval", "bench", "gui",
+)  # fmt: skip

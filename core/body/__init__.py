@@ -1,0 +1,1 @@
+"""The parametric mannequin: shape parameters, its skeleton, skinned mesh and colliders."""

@@ -1,0 +1,55 @@
+"""Shared fixtures: real motion capture from Debian's assimp-testmodels, small made-up data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+#: Where Debian's assimp-testmodels puts its BVH files (the test setup installs the package).
+CMU_BVH_DIR = Path("/usr/share/assimp/models/BVH")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip ``gpu`` tests without CUDA and ``gui`` tests without a display."""
+    has_gpu = False
+    try:
+        import torch
+
+        has_gpu = torch.cuda.is_available()
+    except ImportError:
+        pass
+    for item in items:
+        if "gpu" in item.keywords and not has_gpu:
+            item.add_marker(pytest.mark.skip(reason="no CUDA GPU on this machine"))
+        if "gui" in item.keywords and not os.environ.get("DISPLAY"):
+            item.add_marker(pytest.mark.skip(reason="no display (./studio test starts Xvfb)"))
+
+
+@pytest.fixture(scope="session")
+def bvh_dir() -> Path:
+    """The CMU motion-capture folder; a missing package is a setup error, not a skip."""
+    if not (CMU_BVH_DIR / "01_01.bvh").is_file():
+        pytest.fail(f"{CMU_BVH_DIR} missing: run ./studio setup (installs assimp-testmodels)")
+    return CMU_BVH_DIR
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)
+
+
+def assert_close(actual, expected, atol=1e-6, rtol=0.0, what="arrays"):
+    """``np.allclose`` that says where the largest difference is (PyTorch3D style)."""
+    actual, expected = np.asarray(actual, np.float64), np.asarray(expected, np.float64)
+    assert actual.shape == expected.shape, f"{what}: shape {actual.shape} != {expected.shape}"
+    diff = np.abs(actual - expected)
+    tol = atol + rtol * np.abs(expected)
+    if not (diff <= tol).all():
+        idx = np.unravel_index(np.argmax(diff - tol), diff.shape)
+        raise AssertionError(
+            f"{what}: max difference {diff[idx]:.3g} at {idx} "
+            f"(actual {actual[idx]:.6g}, expected {expected[idx]:.6g}, atol {atol}, rtol {rtol})"
+        )
