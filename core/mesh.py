@@ -132,8 +132,13 @@ def validate_mesh(
     key = np.round(v / MERGE_TOLERANCE_M).astype(np.int64)
     if uvs is not None:
         key = np.concatenate([key, np.round(uvs * 1e6).astype(np.int64)], axis=1)
+    # Keep vertex order (first occurrence wins) so same-topology files stay in correspondence.
     _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    first = first[order]
+    inverse = rank[inverse.reshape(-1)]
     merged = len(v) - len(first)
     v, f = v[first], inverse[f]
     uvs = None if uvs is None else uvs[first]
