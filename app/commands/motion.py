@@ -1,0 +1,140 @@
+"""``dng motion``: inspect BVH files, make procedural clips, retarget onto the mannequin."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "motion",
+        help="inspect, make and retarget body motion (BVH)",
+        description="Body motion: BVH import (any rig, units, up axis), procedural clips, "
+        "retargeting onto the mannequin.",
+    )
+    sub = parser.add_subparsers(dest="motion_command", metavar="ACTION")
+    sub.required = True
+
+    info = sub.add_parser("info", help="what a BVH file holds, mapped onto the canonical joints")
+    info.add_argument("file", help="BVH file")
+    info.add_argument("--json", action="store_true", help="print JSON instead of text")
+    _add_import_options(info)
+    info.set_defaults(handler=_info)
+
+    make = sub.add_parser("make", help="make a procedural clip on the mannequin and write BVH")
+    make.add_argument("kind", help="clip kind (see core.motion.procedural.PROCEDURAL_KINDS)")
+    make.add_argument("--frames", type=int, required=True, help="number of frames")
+    make.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    make.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    make.add_argument("--out", required=True, help="BVH file to write")
+    _add_shape_option(make)
+    make.set_defaults(handler=_make)
+
+    retarget = sub.add_parser("retarget", help="retarget a BVH clip onto the mannequin")
+    retarget.add_argument("file", help="BVH file")
+    retarget.add_argument("--out", required=True, help="BVH file to write")
+    retarget.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
+    _add_shape_option(retarget)
+    _add_import_options(retarget)
+    retarget.set_defaults(handler=_retarget)
+
+
+def _add_import_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--mapping", default=None, help="JSON {canonical_name: source_name} for unusual rigs"
+    )
+    p.add_argument(
+        "--scale", type=float, default=None, help="metres per file unit (overrides detection)"
+    )
+
+
+def _add_shape_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--shape",
+        nargs="*",
+        default=[],
+        metavar="K=V",
+        help="body shape, e.g. height=1.8 build=0.3 (core.body.shape.BodyShape fields)",
+    )
+
+
+def _info(args: argparse.Namespace) -> int:
+    from core.motion.load import load_motion, motion_info
+
+    motion = load_motion(args.file, scale=args.scale, mapping=args.mapping)
+    info = motion_info(motion)
+    info["file"] = str(args.file)
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(format_info(info))
+    return 0
+
+
+def format_info(info: dict) -> str:
+    """The human-readable ``dng motion info`` report."""
+    scale = info["unit_scale"]
+    lines = [
+        f"file:            {info['file']}",
+        f"frames:          {info['frames']} at {info['fps']:g} fps ({info['duration_s']:.2f} s)",
+        f"rig:             {info['rig']} ({info['num_source_joints']} joints)",
+        f"up axis:         {info['up_axis'].upper()}"
+        + (" (converted to Y up)" if info["up_axis"] != "y" else ""),
+        f"unit:            {info['unit']} ({scale:.6g} m per file unit)",
+        f"standing height: {info['standing_height_m']:.3f} m",
+        f"root travel:     {info['root_path_length_m']:.3f} m path, "
+        f"{info['root_displacement_m']:.3f} m net",
+        f"root:            Hips <- {info['root']}",
+        "joints:",
+    ]
+    width = max(len(c) for c in info["joints"])
+    lines += [f"  {c:<{width}} <- {s}" for c, s in info["joints"].items()]
+    if info.get("varying_translations_m"):
+        moved = ", ".join(
+            f"{k} ({v * 100:.2f} cm)" for k, v in info["varying_translations_m"].items()
+        )
+        lines.append(f"note: varying joint translations replaced by their mean: {moved}")
+    lines.append("source joints:   " + ", ".join(info["source_joints"]))
+    return "\n".join(lines)
+
+
+def _make(args: argparse.Namespace) -> int:
+    from core.body.shape import BodyShape
+    from core.errors import InputError
+    from core.motion.bvh import write_bvh
+    from core.motion.procedural import PROCEDURAL_KINDS, make_motion
+
+    if args.kind not in PROCEDURAL_KINDS:
+        raise InputError(f"unknown motion kind {args.kind!r}; choose from {list(PROCEDURAL_KINDS)}")
+    if args.frames < 1:
+        raise InputError(f"--frames must be at least 1, got {args.frames}")
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise InputError(f"--fps must be positive, got {args.fps}")
+    shape = BodyShape.parse(args.shape)
+    motion = make_motion(args.kind, args.frames, args.fps, args.seed, shape)
+    write_bvh(args.out, motion)
+    print(f"wrote {args.out}: {motion.num_frames} frames at {motion.fps:g} fps ({args.kind})")
+    return 0
+
+
+def _retarget(args: argparse.Namespace) -> int:
+    from core.body.shape import BodyShape
+    from core.motion.bvh import write_bvh
+    from core.motion.load import load_motion
+    from core.motion.mapping import canonical_positions
+
+    shape = BodyShape.parse(args.shape)
+    motion = load_motion(args.file, fps=args.fps, scale=args.scale, mapping=args.mapping)
+    positions = canonical_positions(motion)
+    from core.motion.retarget import retarget
+
+    out = retarget(positions, motion.fps, shape, name=motion.name)
+    write_bvh(args.out, out)
+    print(
+        f"wrote {args.out}: {out.num_frames} frames at {out.fps:g} fps, "
+        f"retargeted from {motion.meta.get('rig', 'unknown')} rig "
+        f"({motion.meta.get('unit')}, {motion.meta.get('up_axis', 'y').upper()} up)"
+    )
+    return 0
