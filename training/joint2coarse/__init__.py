@@ -1,0 +1,56 @@
+"""Joint2Coarse: body joint motion -> coarse proxy vertices, with no simulation at test time.
+
+Array-level API (the CLI and project folders wrap it):
+
+- inputs: :func:`joint2coarse_inputs` (Motion -> joints (T, 20, 3), root rotations (T, 3, 3)),
+  :func:`canonical_joint_order`, :func:`motion_descriptors`, :func:`heading_rotations`;
+- training: :class:`Joint2CoarseClip`, :func:`train_joint2coarse` (resumable);
+- prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream`;
+- extras: :func:`push_out_of_capsules`, :func:`vertex_errors`.
+"""
+
+from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules
+from training.joint2coarse.config import PRESETS, Joint2CoarseConfig
+from training.joint2coarse.descriptor import (
+    JOINT2COARSE_JOINTS,
+    canonical_joint_order,
+    from_root_frame,
+    heading_rotations,
+    joint2coarse_inputs,
+    motion_descriptors,
+    to_root_frame,
+)
+from training.joint2coarse.metrics import VertexErrors, vertex_errors
+from training.joint2coarse.model import Joint2CoarseNet, load_model, save_model
+from training.joint2coarse.predict import Joint2CoarseStream, predict_proxy
+from training.joint2coarse.train import (
+    Joint2CoarseClip,
+    Joint2CoarseTrainResult,
+    prepare_data,
+    train_joint2coarse,
+)
+
+__all__ = [
+    "DEFAULT_MARGIN_M",
+    "JOINT2COARSE_JOINTS",
+    "PRESETS",
+    "Joint2CoarseClip",
+    "Joint2CoarseConfig",
+    "Joint2CoarseNet",
+    "Joint2CoarseStream",
+    "Joint2CoarseTrainResult",
+    "VertexErrors",
+    "canonical_joint_order",
+    "from_root_frame",
+    "heading_rotations",
+    "joint2coarse_inputs",
+    "load_model",
+    "motion_descriptors",
+    "predict_proxy",
+    "prepare_data",
+    "push_out_of_capsules",
+    "save_model",
+    "to_root_frame",
+    "train_joint2coarse",
+    "vertex_errors",
+]

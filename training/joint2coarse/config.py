@@ -1,0 +1,126 @@
+"""The Joint2Coarse stage's configuration and named presets."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+from core.errors import InputError
+
+
+@dataclass(frozen=True)
+class Joint2CoarseConfig:
+    """Joint motion -> coarse proxy: descriptor, network sizes, training schedule.
+
+    The defaults are the paper's (DESIGN, "The method"); ``PRESETS`` names smaller ones.
+    """
+
+    window: int = 34
+    """Frames of motion history the descriptor covers (current frame included)."""
+    stride: int = 2
+    """Sample every ``stride``-th frame of the window: ``ceil(window / stride)`` samples
+    (34 / 2 = 17 samples x 19 joints x 3 = the paper's 969 inputs)."""
+    encoder_widths: tuple[int, ...] = (2048, 1024, 512, 256, 128)
+    """Hidden widths of the shape encoder (the decoder mirrors them), for a proxy of
+    ``width_reference_vertices`` vertices or more."""
+    latent_dim: int = 64
+    """Size of the shape latent the motion encoder is trained to hit."""
+    motion_widths: tuple[int, ...] = (512, 256, 128)
+    """Hidden widths of the motion encoder (its output is the ``latent_dim`` latent)."""
+    width_reference_vertices: int = 2048
+    """Proxy vertex count at which ``encoder_widths`` apply in full. Smaller proxies scale every
+    shape-network width by ``n_vertices / width_reference_vertices`` (rounded up), never below
+    ``min_width``; larger proxies keep the listed widths."""
+    min_width: int = 64
+    """Smallest hidden width the small-proxy rule may produce."""
+    dropout: float = 0.05
+    """Dropout probability after every hidden ReLU (training only)."""
+    learning_rate: float = 1e-3
+    """RMSprop learning rate of the autoencoder and motion-encoder stages."""
+    finetune_learning_rate: float = 1e-4
+    """RMSprop learning rate of the end-to-end fine-tune (motion encoder + decoder)."""
+    batch_size: int = 32
+    """Frames per optimisation step."""
+    autoencoder_steps: int = 20000
+    """Steps of stage 1: the shape autoencoder on proxy vertices (vertex L2)."""
+    motion_steps: int = 20000
+    """Steps of stage 2: the motion encoder onto the frozen shape latent (latent L2)."""
+    finetune_steps: int = 5000
+    """Steps of stage 3: motion encoder + decoder end to end on vertex L2 (0 turns it off)."""
+    val_fraction: float = 0.15
+    """Fraction of every clip held out for validation: its last frames, as one contiguous block."""
+    clamp_z: float = 10.0
+    """Normalised inputs (and normalised outputs) are clamped to ``[-clamp_z, clamp_z]``, so
+    motions far outside the training range still give bounded proxies."""
+    std_floor: float = 1e-3
+    """Smallest standard deviation (metres) used to normalise a coordinate; coordinates that
+    hardly move in training are not blown up."""
+    seed: int = 0
+    """Seeds initial weights, shuffling and dropout: the same seed gives the same weights."""
+    checkpoint_every: int = 500
+    """Write the resumable training checkpoint every this many steps (and at every stage end)."""
+    log_every: int = 50
+    """Append a row (mean train loss since the last row) to the loss log every this many steps."""
+    eval_every: int = 500
+    """Compute the validation loss every this many steps (logged in the same row)."""
+
+    def __post_init__(self) -> None:
+        positive = (
+            "window", "stride", "latent_dim", "width_reference_vertices", "min_width",
+            "batch_size", "checkpoint_every", "log_every", "eval_every",
+        )  # fmt: skip
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v > 0):
+                raise InputError(f"joint2coarse config {name}={v!r} must be a positive integer")
+        for name in ("autoencoder_steps", "motion_steps", "finetune_steps", "seed"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 0):
+                raise InputError(f"joint2coarse config {name}={v!r} must be an integer >= 0")
+        for name in ("encoder_widths", "motion_widths"):
+            v = getattr(self, name)
+            if not (isinstance(v, tuple) and all(isinstance(w, int) and w > 0 for w in v)):
+                raise InputError(f"joint2coarse config {name}={v!r} must be a tuple of ints > 0")
+        if not 0.0 <= self.dropout < 1.0:
+            raise InputError(f"joint2coarse config dropout={self.dropout!r} must be in [0, 1)")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise InputError(
+                f"joint2coarse config val_fraction={self.val_fraction!r} not in [0, 1)"
+            )
+        for name in ("learning_rate", "finetune_learning_rate", "clamp_z", "std_floor"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"joint2coarse config {name}={v!r} must be a positive number")
+
+    @property
+    def num_samples(self) -> int:
+        """Frames sampled from the window: ``ceil(window / stride)``."""
+        return -(-self.window // self.stride)
+
+    @property
+    def total_steps(self) -> int:
+        return self.autoencoder_steps + self.motion_steps + self.finetune_steps
+
+    def shape_widths(self, n_vertices: int) -> tuple[int, ...]:
+        """Encoder hidden widths for a proxy of ``n_vertices`` (the small-proxy rule)."""
+        scale = min(1.0, n_vertices / self.width_reference_vertices)
+        return tuple(max(self.min_width, min(w, math.ceil(w * scale))) for w in self.encoder_widths)
+
+    def to_dict(self) -> dict:
+        """Plain types only (tuples as lists): safe inside a ``weights_only`` checkpoint."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Joint2CoarseConfig:
+        names = {f.name for f in fields(cls)}
+        unknown = set(data) - names
+        if unknown:
+            raise InputError(f"unknown joint2coarse config keys {sorted(unknown)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+#: Named configurations. ``paper``: the published sizes. ``fast``: a quick look on a laptop.
+PRESETS: dict[str, Joint2CoarseConfig] = {
+    "paper": Joint2CoarseConfig(),
+    "fast": Joint2CoarseConfig(autoencoder_steps=3000, motion_steps=3000, finetune_steps=1000),
+}
