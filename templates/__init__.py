@@ -1,0 +1,1 @@
+"""Built-in assets: garment generators and coarse template types (:mod:`templates.garments`)."""
