@@ -1,0 +1,18 @@
+"""Benchmarks behind ``dng bench``: one module per bench, each with ``add_arguments(parser)``,
+``run(args)`` and optionally ``HELP``. Modules not written yet are skipped."""
+
+from __future__ import annotations
+
+#: Known benches, in the order ``dng bench --help`` lists them.
+BENCHES = ("proxy", "sim", "raster", "render", "trade")
+#: Where benches write their JSON tables and PNG plots unless told otherwise.
+DEFAULT_OUT = "out/bench"
+
+
+def add_output_arguments(parser) -> None:
+    """The usual ``--out DIR`` (default ``out/bench``) and ``--json`` flags."""
+    parser.add_argument(
+        "--out", default=DEFAULT_OUT, metavar="DIR",
+        help=f"folder for the JSON table and PNG plot (default: {DEFAULT_OUT})",
+    )  # fmt: skip
+    parser.add_argument("--json", action="store_true", help="print the table as JSON on stdout")
