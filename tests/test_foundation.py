@@ -179,6 +179,7 @@ def test_atomic_writes_leave_nothing_on_failure(tmp_path):
     target = tmp_path / "out.json"
     write_json(target, {"a": np.float32(1.5), "b": np.arange(3)})
     assert target.read_text().count("1.5") == 1
+    assert target.stat().st_mode & 0o644 == 0o644, "written files are readable by others"
     with pytest.raises(RuntimeError), atomic_open(target, "w") as f:
         f.write("half")
         raise RuntimeError("killed")
