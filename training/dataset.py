@@ -1,0 +1,183 @@
+"""The neural renderer's training data: samples of frames (t-1, t, t+1) for one camera view.
+
+Images come from the project's ``dataset`` stage (PNG strips); the proxy's UV map and
+motion-feature map are rasterized on the fly from the proxy cache, so the disk holds images
+only, never gigabytes of float maps. The proxy comes from simulation (``source="sim"``) or from
+Joint2Coarse predictions (``source="joint2coarse"``), the switch the paper's test time needs.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputError
+from core.features import FeatureConfig
+
+#: Keys and shapes of one sample (channels first; a DataLoader adds a leading batch axis).
+SAMPLE_KEYS = {
+    "uv": "(3, 2, H, W) float32: proxy UV per pixel, 0 off the proxy",
+    "motion": "(3, 95, H, W) float32: motion features (19 joints x 5 frames), 0 off the proxy",
+    "proxy_mask": "(3, 1, H, W) float32: 1 where the proxy covers the pixel",
+    "target": "(3, 3, H, W) float32: ground truth (garment + body) in [0, 1]",
+    "background": "(3, 3, H, W) float32: the same view, body only, in [0, 1]",
+    "target_mask": "(3, 1, H, W) float32: garment coverage in the ground truth",
+}
+
+
+@dataclass(frozen=True)
+class ProxyFrames:
+    """The proxy as the rasterizer needs it, for every frame of a clip.
+
+    positions : (T, Vs, 3) float32, seam-free vertices (what simulation and Joint2Coarse give)
+    seam_map : (Vp,) int64, UV vertex -> seam-free vertex
+    faces : (F, 3) int64 over the UV vertices
+    uvs : (Vp, 2) float32
+    """
+
+    positions: np.ndarray
+    seam_map: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray
+
+    def vertices(self, t: int) -> np.ndarray:
+        """UV-split vertices at frame t: (Vp, 3) float32."""
+        return self.positions[t][self.seam_map]
+
+
+def load_proxy_frames(project_root: str | Path, positions: np.ndarray) -> ProxyFrames:
+    """The project's proxy topology and UVs around a (T, Vs, 3) positions cache."""
+    from core.mesh import load_mesh
+
+    root = Path(project_root)
+    proxy, _ = load_mesh(root / "proxy" / "proxy.obj")
+    seams = np.load(root / "proxy" / "seams.npz")["seam_map"]
+    if proxy.uvs is None:
+        raise InputError("proxy has no UVs", root / "proxy" / "proxy.obj")
+    if positions.ndim != 3 or positions.shape[1] <= seams.max():
+        raise InputError(
+            f"proxy cache of shape {positions.shape} does not fit the proxy "
+            f"({seams.max() + 1} seam-free vertices)",
+            root,
+        )
+    return ProxyFrames(positions.astype(np.float32), seams, proxy.faces, proxy.uvs)
+
+
+class GarmentDataset:
+    """A torch-style map dataset over the samples of a project's ``dataset`` stage.
+
+    Parameters
+    ----------
+    project_root : the project folder (after ``stage_dataset``)
+    source : ``"sim"`` (simulated proxy) or ``"joint2coarse"`` (predicted proxy)
+    features : the motion-feature settings (sigma, frame offsets)
+    """
+
+    def __init__(
+        self,
+        project_root: str | Path,
+        source: str = "sim",
+        features: FeatureConfig | None = None,
+    ):
+        from core.camera import camera_from_dict
+        from core.motion.load import load_motion
+        from training.joint2coarse import joint2coarse_inputs
+
+        self.root = Path(project_root)
+        index_path = self.root / "dataset" / "samples.json"
+        if not index_path.is_file():
+            raise InputError("no data set here: run the dataset stage first", index_path)
+        index = json.loads(index_path.read_text())
+        motion_name = index["motion"]
+        if source == "sim":
+            cache = self.root / "sim" / f"{motion_name}-proxy" / "cache.npz"
+            if not cache.is_file():
+                raise InputError("no simulated proxy cache", cache)
+            positions = np.load(cache)["positions"]
+        elif source == "joint2coarse":
+            cache = self.root / "joint2coarse" / f"pred-{motion_name}.npz"
+            if not cache.is_file():
+                raise InputError("no Joint2Coarse prediction of the training motion", cache)
+            positions = np.load(cache)["positions"]
+        else:
+            raise InputError(f"source must be 'sim' or 'joint2coarse', got {source!r}")
+        self.source = source
+        self.proxy = load_proxy_frames(self.root, positions)
+        motion = load_motion(self.root / "motions" / f"{motion_name}.bvh")
+        joints, _ = joint2coarse_inputs(motion)
+        self.joints = joints[:, 1:]  # the 19 canonical joints (Hips dropped)
+        if len(self.joints) != len(positions):
+            raise InputError(
+                f"motion has {len(self.joints)} frames, proxy cache {len(positions)}", cache
+            )
+        self.features = FeatureConfig() if features is None else features
+        self.samples = [
+            (s["frame"], s["view"], camera_from_dict(s["camera"], index_path))
+            for s in index["samples"]
+        ]
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def proxy_maps(self, t: int, camera) -> dict[str, np.ndarray]:
+        """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W) at frame t."""
+        from core.features import interpolate, joint_window, vertex_motion_features
+        from core.raster import rasterize
+
+        v = self.proxy.vertices(t)
+        frags = rasterize(v, self.proxy.faces, camera)
+        window = joint_window(self.joints, t, self.features.frame_offsets)
+        feats = vertex_motion_features(v, window, self.features.sigma)
+        return {
+            "uv": interpolate(frags, self.proxy.faces, self.proxy.uvs).transpose(2, 0, 1),
+            "motion": interpolate(frags, self.proxy.faces, feats).transpose(2, 0, 1),
+            "proxy_mask": frags.mask[None].astype(np.float32),
+        }
+
+    def __getitem__(self, i: int) -> dict:
+        import torch
+        from PIL import Image
+
+        from training.pipeline import sample_name
+
+        t, k, camera = self.samples[i]
+        frames = [self.proxy_maps(f, camera) for f in (t - 1, t, t + 1)]
+        out = {key: np.stack([fr[key] for fr in frames]) for key in frames[0]}
+        w = camera.width
+        base = self.root / "dataset" / "samples" / sample_name(t, k)
+        for key, suffix in (("target", "image"), ("background", "background")):
+            strip = np.asarray(Image.open(f"{base}_{suffix}.png").convert("RGB"), np.float32) / 255
+            out[key] = np.stack(
+                [strip[:, j * w : (j + 1) * w].transpose(2, 0, 1) for j in range(3)]
+            )
+        mask = np.asarray(Image.open(f"{base}_mask.png"), np.float32) / 255
+        out["target_mask"] = np.stack([mask[None, :, j * w : (j + 1) * w] for j in range(3)])
+        return {
+            key: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for key, v in out.items()
+        }
+
+    def contact_sheet(self, i: int, path: str | Path) -> None:
+        """One sample's frames as a PNG: images, backgrounds, masks, proxy UV maps, a feature."""
+        from core.shading import colorize_scalar, colorize_uv, contact_sheet, write_png
+
+        s = self[i]
+        tiles, labels = [], []
+        for j, name in enumerate(("t-1", "t", "t+1")):
+            img = (s["target"][j].numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)
+            bg = (s["background"][j].numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)
+            mask = s["target_mask"][j, 0].numpy()
+            pmask = s["proxy_mask"][j, 0].numpy() > 0
+            uv = colorize_uv(s["uv"][j].numpy().transpose(1, 2, 0), pmask)
+            feat = colorize_scalar(s["motion"][j, 13].numpy())  # LeftUpLeg at frame t
+            tiles += [img, bg, colorize_scalar(mask), uv, feat]
+            labels += [
+                f"{name} image",
+                "background",
+                "garment mask",
+                "proxy UV",
+                "LeftUpLeg feature",
+            ]
+        write_png(path, contact_sheet(tiles, labels, columns=5))

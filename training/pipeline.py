@@ -1,0 +1,526 @@
+"""The garment project's stages, from a detailed garment to Joint2Coarse, over one folder.
+
+Each stage is a function of a :class:`core.project.Project` and a :class:`PipelineConfig`; it
+writes its outputs into its own folder of the project with the parameters that made them and
+is skipped when neither its parameters nor its input files changed. ``dng demo``, the other
+CLI commands and the GUI all call these functions.
+
+Stages and their folders::
+
+    motions/    NAME.bvh for the training motion and every test motion (on the mannequin)
+    garment/    target.obj, the detailed garment
+    proxy/      proxy.obj (with UVs), positions.obj (seam-free), seams.npz, report.json
+    sim/NAME-proxy/, sim/NAME-target/    cache.npz + report.json per simulated clip
+    dataset/    samples.json (frame, camera per sample), samples/*.png strips of frames
+                t-1, t, t+1: ground truth, body-only background, garment mask
+    joint2coarse/    the trained model, its loss log, pred-MOTION.npz for the training and
+                     every test motion, report.json
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.body.shape import BodyShape
+from core.errors import InputError
+from core.fileio import write_json, write_npz
+from core.project import Project
+
+#: Real motion capture used as an unseen test motion when Debian's assimp-testmodels is there.
+CMU_CLIP = Path("/usr/share/assimp/models/BVH/01_01.bvh")
+
+
+@dataclass(frozen=True)
+class MotionSpec:
+    """One motion of the project: procedural (``kind`` from PROCEDURAL_KINDS) or a BVH file."""
+
+    name: str
+    """File stem under ``motions/`` and the name in reports."""
+    kind: str
+    """A procedural kind (dance, twirl, walk, ...) or ``file`` for ``path``."""
+    frames: int
+    """Frames to keep (at the project's fps)."""
+    seed: int = 0
+    """Seed of a procedural motion."""
+    path: str | None = None
+    """The BVH file when ``kind == "file"`` (any rig; it is retargeted onto the mannequin)."""
+    start_s: float = 0.0
+    """Seconds to skip at the start of a file (motion capture often starts in a T-pose)."""
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything that decides a project's outputs. Presets: :data:`PRESETS`."""
+
+    garment: str = "multilayer-skirt"
+    """A built-in garment name (``dng garment list``) or the path of a mesh file."""
+    garment_resolution_mm: float | None = None
+    """Resolution of a built-in garment (its default when None)."""
+    body: BodyShape = field(default_factory=BodyShape)
+    """The mannequin's shape."""
+    fps: float = 30.0
+    """Frame rate of every motion and cache."""
+    train_motion: MotionSpec = MotionSpec("dance", "dance", 300, seed=0)
+    """The training motion (the paper: 850 frames of dance)."""
+    test_motions: tuple[MotionSpec, ...] = (
+        MotionSpec("twirl", "twirl", 150, seed=1),
+        MotionSpec("cmu-01_01", "file", 150, path=str(CMU_CLIP), start_s=2.0),
+    )
+    """Unseen motions for evaluation; a file that is not on this machine is skipped."""
+    proxy_verts: int = 1000
+    """Target vertex count of the derived proxy."""
+    proxy_texture: int = 512
+    """Texture size the proxy's UV atlas is packed for."""
+    fabric: str = "cotton"
+    """Fabric preset of the simulation (``core.sim.config``)."""
+    sim_substeps: int = 2
+    """Simulation substeps per frame at 30 fps."""
+    simulate_target: bool = True
+    """Simulate the detailed target too (needed for ground-truth images)."""
+    views_per_frame: int = 5
+    """Cameras per training frame (the paper: 10); each gives one sample of frames t-1, t, t+1."""
+    frame_stride: int = 2
+    """Every this many frames of the training motion is the centre of samples."""
+    image_size: int = 128
+    """Training image width and height in pixels (the paper: 512)."""
+    joint2coarse_preset: str = "fast"
+    """Joint2Coarse preset name (``training.joint2coarse.PRESETS``) ..."""
+    joint2coarse_steps: tuple[int, int, int] | None = None
+    """... with (autoencoder, motion, finetune) step counts overridden when given."""
+    seed: int = 0
+    """Seed of everything random in training."""
+
+    def as_params(self) -> dict:
+        return asdict(self)
+
+
+PRESETS: dict[str, PipelineConfig] = {
+    # The tests run this: every stage end to end in well under three minutes on 2 cores.
+    "smoke": PipelineConfig(
+        garment_resolution_mm=25.0,
+        train_motion=MotionSpec("dance", "dance", 40, seed=0),
+        test_motions=(
+            MotionSpec("twirl", "twirl", 20, seed=1),
+            MotionSpec("cmu-01_01", "file", 20, path=str(CMU_CLIP), start_s=2.0),
+        ),
+        proxy_verts=300,
+        proxy_texture=256,
+        sim_substeps=1,
+        views_per_frame=2,
+        frame_stride=6,
+        image_size=64,
+        joint2coarse_steps=(300, 300, 100),
+    ),
+    # The default: minutes on 2 cores, results that look like the garment.
+    "quick": PipelineConfig(),
+    # The paper's sizes, for a GPU machine.
+    "paper": PipelineConfig(
+        train_motion=MotionSpec("dance", "dance", 850, seed=0),
+        test_motions=(
+            MotionSpec("twirl", "twirl", 300, seed=1),
+            MotionSpec("walk", "walk", 300, seed=2),
+            MotionSpec("cmu-01_01", "file", 300, path=str(CMU_CLIP), start_s=2.0),
+        ),
+        proxy_verts=2000,
+        views_per_frame=10,
+        frame_stride=1,
+        image_size=512,
+        joint2coarse_preset="paper",
+    ),
+}
+
+
+def preset(name: str) -> PipelineConfig:
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+Log = Callable[[str], None]
+
+
+def _quiet(_: str) -> None:
+    pass
+
+
+# ---------------------------------------------------------------------------------- stages
+
+
+def available_test_motions(config: PipelineConfig) -> tuple[MotionSpec, ...]:
+    """The test motions whose files exist on this machine."""
+    return tuple(m for m in config.test_motions if m.kind != "file" or Path(m.path).is_file())
+
+
+def stage_motions(project: Project, config: PipelineConfig, log: Log = _quiet) -> list[str]:
+    """Write every motion of the project as a BVH on the mannequin: ``motions/NAME.bvh``."""
+    from core.motion.bvh import write_bvh
+
+    specs = (config.train_motion, *available_test_motions(config))
+    params = {"specs": [asdict(s) for s in specs], "fps": config.fps, "body": asdict(config.body)}
+    inputs = [s.path for s in specs if s.kind == "file"]
+
+    def work(out: Path) -> list[str]:
+        names = []
+        for spec in specs:
+            motion = _make_motion(spec, config)
+            write_bvh(out / f"{spec.name}.bvh", motion)
+            names.append(f"{spec.name}.bvh")
+            log(f"  {spec.name}: {motion.num_frames} frames at {motion.fps:g} fps")
+        return names
+
+    project.run_stage("motions", params, inputs, work)
+    return [s.name for s in specs]
+
+
+def _make_motion(spec: MotionSpec, config: PipelineConfig):
+    from core.motion.load import load_motion, resample
+    from core.motion.mapping import canonical_positions
+    from core.motion.procedural import make_motion
+    from core.motion.retarget import retarget
+
+    if spec.kind != "file":
+        return make_motion(spec.kind, spec.frames, config.fps, spec.seed, config.body)
+    source = resample(load_motion(spec.path), config.fps)
+    first = int(round(spec.start_s * config.fps))
+    if first + spec.frames > source.num_frames:
+        raise InputError(
+            f"{spec.frames} frames from {spec.start_s} s wanted, the clip has {source.num_frames}",
+            spec.path,
+        )
+    positions = canonical_positions(source)[first : first + spec.frames]
+    return retarget(positions, config.fps, config.body, name=spec.name)
+
+
+def load_project_motion(project: Project, name: str):
+    """A motion written by :func:`stage_motions` (a Motion on the mannequin's joints)."""
+    from core.motion.load import load_motion
+
+    return load_motion(project.path("motions", f"{name}.bvh"))
+
+
+def stage_garment(project: Project, config: PipelineConfig, log: Log = _quiet) -> Path:
+    """The detailed target garment: ``garment/target.obj``."""
+    from core.mesh import load_mesh, save_mesh
+
+    builtin = not Path(config.garment).suffix
+    params = {
+        "garment": config.garment,
+        "resolution_mm": config.garment_resolution_mm,
+        "body": asdict(config.body),
+    }
+
+    def work(out: Path) -> list[str]:
+        if builtin:
+            from templates.garments import make_garment
+
+            mesh = make_garment(
+                config.garment, config.garment_resolution_mm, config.body, config.seed
+            )
+        else:
+            mesh, _ = load_mesh(config.garment)
+        save_mesh(out / "target.obj", mesh)
+        log(f"  {config.garment}: {mesh.num_vertices} vertices, {mesh.num_faces} faces")
+        return ["target.obj"]
+
+    project.run_stage("garment", params, [] if builtin else [config.garment], work)
+    return project.path("garment", "target.obj")
+
+
+def stage_proxy(project: Project, config: PipelineConfig, log: Log = _quiet) -> dict:
+    """The coarse proxy of the target: UV'd ``proxy.obj``, seam-free ``positions.obj``."""
+    from core.mesh import load_mesh, save_mesh
+    from core.proxy import ProxyConfig, derive_proxy
+
+    target = project.path("garment", "target.obj")
+    cfg = ProxyConfig(target_verts=config.proxy_verts, texture_size=config.proxy_texture)
+    params = {"proxy": asdict(cfg)}
+
+    def work(out: Path) -> list[str]:
+        mesh, _ = load_mesh(target)
+        result = derive_proxy(mesh, cfg, path=target)
+        save_mesh(out / "proxy.obj", result.proxy)
+        save_mesh(out / "positions.obj", result.positions)
+        write_npz(out / "seams.npz", seam_map=result.seam_map)
+        write_json(out / "report.json", result.report)
+        log(
+            f"  proxy: {result.positions.num_vertices} vertices "
+            f"({result.proxy.num_vertices} with UV seams)"
+        )
+        return ["proxy.obj", "positions.obj", "seams.npz", "report.json"]
+
+    project.run_stage("proxy", params, [target], work)
+    import json
+
+    return json.loads(project.path("proxy", "report.json").read_text())
+
+
+def stage_simulate(
+    project: Project,
+    config: PipelineConfig,
+    motion_name: str,
+    which: str,
+    log: Log = _quiet,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Simulate the proxy (``which="proxy"``) or the target under a motion of the project.
+
+    Writes ``sim/MOTION-WHICH/cache.npz`` and ``report.json``; returns the cache's path.
+    """
+    from core.mesh import load_mesh
+    from core.sim import SimConfig, save_cache
+    from core.sim.simulate import simulate
+
+    garment = (
+        project.path("proxy", "positions.obj")
+        if which == "proxy"
+        else project.path("garment", "target.obj")
+    )
+    motion_file = project.path("motions", f"{motion_name}.bvh")
+    sim_cfg = SimConfig(fabric=config.fabric, substeps=config.sim_substeps)
+    params = {"sim": asdict(sim_cfg), "body": asdict(config.body), "which": which}
+    stage = f"sim/{motion_name}-{which}"
+
+    def work(out: Path) -> list[str]:
+        mesh, _ = load_mesh(garment)
+        motion = load_project_motion(project, motion_name)
+        cache, report = simulate(
+            mesh, motion, config.body, sim_cfg, path=garment, progress=progress
+        )
+        save_cache(out / "cache.npz", cache)
+        write_json(out / "report.json", asdict(report))
+        log(
+            f"  {motion_name}/{which}: {cache.num_frames} frames x {cache.num_vertices} vertices, "
+            f"{report.ms_per_frame:.0f} ms/frame, penetration {report.penetration_mean_mm:.2f} mm"
+        )
+        return ["cache.npz", "report.json"]
+
+    project.run_stage(stage, params, [garment, motion_file], work)
+    return project.path(stage, "cache.npz")
+
+
+def joint2coarse_config(config: PipelineConfig):
+    from training.joint2coarse import PRESETS as J2C_PRESETS
+
+    if config.joint2coarse_preset not in J2C_PRESETS:
+        raise InputError(
+            f"unknown joint2coarse preset {config.joint2coarse_preset!r}; "
+            f"choose from {', '.join(J2C_PRESETS)}"
+        )
+    cfg = replace(J2C_PRESETS[config.joint2coarse_preset], seed=config.seed)
+    if config.joint2coarse_steps is not None:
+        a, m, f = config.joint2coarse_steps
+        cfg = replace(cfg, autoencoder_steps=a, motion_steps=m, finetune_steps=f)
+    return cfg
+
+
+def stage_joint2coarse(
+    project: Project, config: PipelineConfig, log: Log = _quiet, progress: bool = True
+) -> dict:
+    """Train Joint2Coarse on the training motion's proxy simulation; evaluate on test motions.
+
+    Writes the model and loss log (``training.joint2coarse``), ``pred-MOTION.npz`` for every
+    test motion, and ``report.json`` with per-vertex errors against simulation (mean and 95th
+    percentile in mm), body penetration of the predictions, and inference time per frame.
+    """
+    from core.sim import load_cache
+    from training.joint2coarse import (
+        Joint2CoarseClip,
+        joint2coarse_inputs,
+        predict_proxy,
+        train_joint2coarse,
+    )
+
+    cfg = joint2coarse_config(config)
+    train = config.train_motion.name
+    tests = [m.name for m in available_test_motions(config)]
+    train_cache = project.path(f"sim/{train}-proxy", "cache.npz")
+    test_caches = [project.path(f"sim/{name}-proxy", "cache.npz") for name in tests]
+    motions = [project.path("motions", f"{n}.bvh") for n in (train, *tests)]
+    params = {"joint2coarse": cfg.to_dict(), "train": train, "tests": tests}
+
+    def work(out: Path) -> list[str]:
+        motion = load_project_motion(project, train)
+        cache = load_cache(train_cache)
+        joints, root_rot = joint2coarse_inputs(motion)
+        clip = Joint2CoarseClip(joints, root_rot, cache.positions, name=train)
+        result = train_joint2coarse([clip], out, cfg, progress=progress)
+        report = {
+            "config": cfg.to_dict(),
+            "train_motion": train,
+            "validation_error_mm": {k: asdict(v) for k, v in result.stage_errors.items()},
+            "validation_mean_shape_baseline_mm": asdict(result.baseline)
+            if result.baseline
+            else None,
+            "motions": {},
+        }
+        outputs = [result.model_path.name, result.log_path.name]
+        # The training motion's prediction: the proxy the renderer sees at test time.
+        write_npz(out / f"pred-{train}.npz", positions=predict_proxy(result.net, joints, root_rot))
+        outputs.append(f"pred-{train}.npz")
+        for name, cache_path in zip(tests, test_caches):
+            report["motions"][name] = _evaluate_joint2coarse(
+                project, config, result.net, name, load_cache(cache_path), out
+            )
+            outputs.append(f"pred-{name}.npz")
+            e = report["motions"][name]["error_mm"]
+            log(f"  {name}: mean {e['mean_mm']:.1f} mm, p95 {e['p95_mm']:.1f} mm (unseen motion)")
+        write_json(out / "report.json", report)
+        return [*outputs, "report.json"]
+
+    project.run_stage("joint2coarse", params, [train_cache, *test_caches, *motions], work)
+    import json
+
+    return json.loads(project.path("joint2coarse", "report.json").read_text())
+
+
+def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> dict:
+    """Predict a test motion, compare with its simulation, time the inference."""
+    from core.body.colliders import posed_capsules_for
+    from core.body.mannequin import make_body
+    from core.sim.simulate import penetration_depths
+    from training.joint2coarse import joint2coarse_inputs, predict_proxy, vertex_errors
+
+    motion = load_project_motion(project, name)
+    joints, root_rot = joint2coarse_inputs(motion)
+    start = time.perf_counter()
+    pred = predict_proxy(net, joints, root_rot)
+    ms = 1e3 * (time.perf_counter() - start) / len(pred)
+    write_npz(out / f"pred-{name}.npz", positions=pred)
+    body = make_body(config.body)
+    capsules = posed_capsules_for(body, motion)
+    depth = penetration_depths(pred, capsules, body.capsules.radii)
+    return {
+        "frames": int(len(pred)),
+        "error_mm": asdict(vertex_errors(pred, reference.positions)),
+        "penetration_mm": {
+            "mean": float(depth.mean() * 1e3),
+            "max": float(depth.max() * 1e3),
+            "fraction": float((depth > 0).mean()),
+        },
+        "batch_ms_per_frame": ms,
+        "command": "dng demo (stage joint2coarse)",
+    }
+
+
+# ---------------------------------------------------------------------------------- data set
+
+
+def dataset_rig(config: PipelineConfig, garment_vertices: np.ndarray):
+    """Cameras on a circle that frame the garment (it fills most of the image)."""
+    from core.camera import CameraRigConfig
+
+    lo, hi = garment_vertices.min(axis=0), garment_vertices.max(axis=0)
+    centre = (lo + hi) / 2
+    half = 0.5 * float(np.linalg.norm(hi - lo)) * 1.15  # room for the swing
+    fov = 40.0
+    dist = half / np.tan(np.radians(fov / 2))
+    return CameraRigConfig(
+        width=config.image_size,
+        height=config.image_size,
+        fov_y_deg=fov,
+        target=(0.0, float(centre[1]), 0.0),
+        radius_range=(dist, dist * 1.15),
+        elevation_deg_range=(-5.0, 25.0),
+        target_jitter=0.03,
+    )
+
+
+def sample_frames(num_frames: int, stride: int) -> list[int]:
+    """Centres t of samples (t-1, t, t+1): every ``stride`` frames, away from the ends."""
+    return list(range(1, num_frames - 1, max(1, stride)))
+
+
+def stage_dataset(project: Project, config: PipelineConfig, log: Log = _quiet) -> Path:
+    """Ground-truth renders of the simulated target on the body, and body-only backgrounds.
+
+    For every sample centre t (:func:`sample_frames`) and each of ``views_per_frame`` cameras
+    (``random_cameras(seed=(seed, t))``, following the body's root at t), renders frames t-1,
+    t, t+1 from that camera. Writes per sample three PNG strips (H, 3W): ``..._image.png``,
+    ``..._background.png``, ``..._mask.png``; and ``samples.json`` with the cameras. Feature
+    maps are not stored: :class:`training.dataset.GarmentDataset` rasterizes them on the fly.
+    """
+    from core.body.mannequin import make_body
+    from core.body.skinning import pose_body
+    from core.camera import camera_to_dict, random_cameras
+    from core.mesh import Mesh, load_mesh
+    from core.shading import render_views, write_png
+    from core.sim import load_cache
+
+    train = config.train_motion.name
+    target_cache = project.path(f"sim/{train}-target", "cache.npz")
+    motion_file = project.path("motions", f"{train}.bvh")
+    params = {
+        "views": config.views_per_frame,
+        "stride": config.frame_stride,
+        "size": config.image_size,
+        "seed": config.seed,
+        "body": asdict(config.body),
+    }
+
+    def work(out: Path) -> list[str]:
+        from tqdm import tqdm
+
+        cache = load_cache(target_cache)
+        motion = load_project_motion(project, train)
+        rest, _ = load_mesh(project.path("garment", "target.obj"))
+        body = make_body(config.body)
+        body_frames = pose_body(body, motion)
+        rig = dataset_rig(config, rest.vertices)
+        root = motion.root_positions
+        centres = sample_frames(cache.num_frames, config.frame_stride)
+        cams = {}
+        for t in centres:
+            shift = np.array([root[t, 0], 0.0, root[t, 2]])
+            for k, cam in enumerate(random_cameras(config.views_per_frame, (config.seed, t), rig)):
+                e = cam.extrinsic.astype(np.float64).copy()
+                e[:3, 3] -= e[:3, :3] @ shift  # follow the body: the camera moves with the root
+                cams[(t, k)] = type(cam)(
+                    cam.K, e.astype(cam.extrinsic.dtype), cam.width, cam.height
+                )
+        # Render frame by frame: each frame is seen by the cameras of samples t-1, t, t+1.
+        strips: dict[tuple[int, int], list] = {key: [None] * 3 for key in cams}
+        frames = sorted({t + d for t in centres for d in (-1, 0, 1)})
+        for f in tqdm(frames, desc="ground truth", unit="frame", leave=False):
+            wanted = [(t, k, f - t + 1) for (t, k) in cams if abs(f - t) <= 1]
+            garment = Mesh(cache.positions[f], cache.faces)
+            body_mesh = Mesh(body_frames[f], body.faces)
+            views = render_views(garment, body_mesh, [cams[(t, k)] for t, k, _ in wanted])
+            for (t, k, slot), gt in zip(wanted, views):
+                strips[(t, k)][slot] = gt
+                if all(s is not None for s in strips[(t, k)]):
+                    _write_sample(out, t, k, strips.pop((t, k)), write_png)
+        samples = [
+            {"frame": t, "view": k, "camera": camera_to_dict(c)} for (t, k), c in cams.items()
+        ]
+        write_json(
+            out / "samples.json",
+            {"motion": train, "fps": cache.fps, "num_frames": cache.num_frames, "samples": samples},
+        )
+        log(f"  {len(samples)} samples of 3 frames at {config.image_size} px")
+        return ["samples.json"] + [
+            f"samples/{sample_name(t, k)}_{kind}.png"
+            for (t, k) in cams
+            for kind in ("image", "background", "mask")
+        ]
+
+    project.run_stage("dataset", params, [target_cache, motion_file], work)
+    return project.stage_dir("dataset")
+
+
+def sample_name(t: int, k: int) -> str:
+    return f"t{t:05d}_v{k:02d}"
+
+
+def _write_sample(out: Path, t: int, k: int, gts: list, write_png) -> None:
+    name = sample_name(t, k)
+    write_png(out / "samples" / f"{name}_image.png", np.concatenate([g.image for g in gts], 1))
+    write_png(
+        out / "samples" / f"{name}_background.png", np.concatenate([g.background for g in gts], 1)
+    )
+    mask = np.concatenate([np.round(g.coverage * 255).astype(np.uint8) for g in gts], 1)
+    write_png(out / "samples" / f"{name}_mask.png", mask)
