@@ -98,6 +98,31 @@ class PipelineConfig:
     def as_params(self) -> dict:
         return asdict(self)
 
+    @classmethod
+    def from_params(cls, data: dict, path=None) -> PipelineConfig:
+        """Inverse of :meth:`as_params` (what ``project.json`` stores); InputError if malformed."""
+        try:
+            data = dict(data)
+            data["body"] = BodyShape(**data.get("body", {}))
+            data["train_motion"] = MotionSpec(**data["train_motion"])
+            data["test_motions"] = tuple(MotionSpec(**m) for m in data.get("test_motions", ()))
+            if data.get("joint2coarse_steps") is not None:
+                data["joint2coarse_steps"] = tuple(data["joint2coarse_steps"])
+            return cls(**data)
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"malformed pipeline settings ({exc})", path) from None
+
+
+def project_config(project: Project) -> PipelineConfig:
+    """The pipeline settings saved in a project (``dng demo`` writes them)."""
+    settings = project.settings()
+    if "pipeline" not in settings:
+        raise InputError(
+            "not a garment project (no pipeline settings): create one with dng demo",
+            project.root / "project.json",
+        )
+    return PipelineConfig.from_params(settings["pipeline"], project.root / "project.json")
+
 
 PRESETS: dict[str, PipelineConfig] = {
     # The tests run this: every stage end to end in well under three minutes on 2 cores.
