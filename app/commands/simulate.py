@@ -1,0 +1,220 @@
+"""``dng simulate``: cloth simulation of a garment on the moving mannequin, or cache import.
+
+Simulate::
+
+    dng simulate --garment G.obj --motion M.bvh [--body-shape k=v ...] [--fabric silk]
+                 [--substeps N] --out CACHE.npz [--json] [--preview [PNG]] [--export FILE ...]
+
+``--garment`` is a mesh file or a built-in garment name; ``--motion`` a BVH file (retargeted
+onto the mannequin) or a procedural kind (``dance``, ``twirl``...). Writes the cache and a JSON
+report beside it (``CACHE.report.json``).
+
+Import a cache simulated elsewhere (OBJ-sequence folder, ``.pc2``, ``.mdd``, ``.npz``)::
+
+    dng simulate --import frames/ --garment G.obj --out CACHE.npz [--fps 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "simulate",
+        help="simulate a garment on the moving body (newton), or import a cache",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--garment", required=True, help="garment mesh file or built-in garment name")
+    p.add_argument("--motion", help="BVH file, or a procedural kind (dance, twirl, walk...)")
+    p.add_argument("--import", dest="import_from", metavar="CACHE", help="import this cache")
+    p.add_argument("--out", required=True, help="cache to write (.npz)")
+    p.add_argument("--frames", type=int, default=150, help="procedural motion: frames (150)")
+    p.add_argument("--fps", type=float, default=None, help="frame rate (procedural: 30)")
+    p.add_argument("--seed", type=int, default=0, help="procedural motion seed (0)")
+    p.add_argument(
+        "--body-shape", "--shape", dest="shape", nargs="*", default=[], metavar="K=V",
+        help="body shape, e.g. height=1.8 hip=1.1 (core.body.shape.BodyShape fields)",
+    )  # fmt: skip
+    p.add_argument("--fabric", default="cotton", help="fabric preset: silk, cotton, denim")
+    p.add_argument("--solver", default=None, help="style3d (default) or vbd")
+    p.add_argument(
+        "--quality", default="final", help="final (8x16, default), medium (4x8) or draft (2x8) "
+        "substeps x iterations; --substeps/--iterations override",
+    )  # fmt: skip
+    p.add_argument("--substeps", type=int, default=None, help="solver steps per 1/30 s")
+    p.add_argument("--iterations", type=int, default=None, help="solver iterations per step")
+    p.add_argument(
+        "--self-collision", action=argparse.BooleanOptionalAction, default=None,
+        help="cloth-cloth contact (default: on for garments in several pieces, e.g. layers)",
+    )  # fmt: skip
+    p.add_argument("--transition", type=float, default=None, help="rest-to-frame-0 blend, s")
+    p.add_argument("--device", default="cpu", help="warp device: cpu or cuda")
+    p.add_argument(
+        "--preview", nargs="?", const="", default=None, metavar="PNG",
+        help="write a contact sheet (default: CACHE.preview.png)",
+    )  # fmt: skip
+    p.add_argument(
+        "--export", nargs="*", default=[], metavar="FILE",
+        help="also write the cache as .pc2, .mdd or an OBJ-sequence folder",
+    )  # fmt: skip
+    p.add_argument(
+        "--body-check", action="store_true",
+        help="also measure penetration into the skinned body mesh (not only the colliders)",
+    )  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(handler=run)
+
+
+def _garment(spec: str, shape):
+    from core.mesh import MESH_SUFFIXES, load_mesh
+
+    if Path(spec).suffix.lower() in MESH_SUFFIXES or Path(spec).exists():
+        mesh, _ = load_mesh(spec)
+        return mesh, spec
+    from templates.garments import make_garment
+
+    return make_garment(spec, shape=shape), None
+
+
+def _motion(args, shape):
+    from core.errors import InputError
+
+    spec = args.motion
+    if spec is None:
+        raise InputError("give --motion (BVH file or procedural kind) or --import CACHE")
+    if Path(spec).suffix.lower() == ".bvh" or Path(spec).exists():
+        from core.body.shape import MANNEQUIN_JOINTS
+        from core.motion.load import load_motion
+        from core.motion.mapping import canonical_positions
+        from core.motion.retarget import retarget
+
+        source = load_motion(spec, fps=args.fps)
+        if tuple(source.skeleton.names) == MANNEQUIN_JOINTS:
+            return source
+        return retarget(canonical_positions(source), source.fps, shape, name=source.name)
+    from core.motion.procedural import make_motion
+
+    return make_motion(spec, args.frames, args.fps or 30.0, args.seed, shape)
+
+
+def _report_path(out: Path, what: str) -> Path:
+    return out.with_name(out.stem + what)
+
+
+def run(args: argparse.Namespace) -> int:
+    from core.body.shape import BodyShape
+    from core.errors import InputError
+    from core.fileio import write_json
+    from core.sim.cache import export_cache, import_cache, save_cache
+    from core.sim.config import SimConfig
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".npz":
+        raise InputError("the cache is written as .npz; use --export for other formats", out)
+    shape = BodyShape.parse(args.shape)
+    garment, gpath = _garment(args.garment, shape)
+    if args.import_from:
+        cache = import_cache(args.import_from, faces=garment.faces, fps=args.fps)
+        if cache.num_vertices != garment.num_vertices:
+            raise InputError(
+                f"topology mismatch: cache has {cache.num_vertices} vertices, garment "
+                f"{args.garment} has {garment.num_vertices}",
+                args.import_from,
+            )
+        save_cache(out, cache)
+        for extra in args.export:
+            export_cache(extra, cache)
+        report = {
+            "imported": str(args.import_from), "frames": cache.num_frames,
+            "vertices": cache.num_vertices, "fps": cache.fps, "cache": str(out),
+        }  # fmt: skip
+        print(json.dumps(report, indent=2) if args.json else f"imported {report}")
+        return 0
+
+    from core.sim.config import QUALITY
+
+    if args.quality not in QUALITY:
+        raise InputError(f"unknown --quality {args.quality!r}; choose one of {', '.join(QUALITY)}")
+    substeps, iterations = QUALITY[args.quality]
+    args.substeps = substeps if args.substeps is None else args.substeps
+    args.iterations = iterations if args.iterations is None else args.iterations
+    changes = {
+        k: v
+        for k, v in {
+            "solver": args.solver, "substeps": args.substeps, "iterations": args.iterations,
+            "transition_s": args.transition,
+        }.items()
+        if v is not None
+    }  # fmt: skip
+    config = SimConfig(
+        fabric=args.fabric, self_collision=args.self_collision, device=args.device, **changes
+    )
+    motion = _motion(args, shape)
+    from core.sim.simulate import simulate
+
+    def progress(done: int, total: int) -> None:
+        if not args.json and (done == total or done % 10 == 0):
+            print(f"\rframe {done}/{total}", end="" if done < total else "\n", file=sys.stderr)
+
+    import contextlib
+
+    # Keep stdout for the JSON report: warp/newton print kernel-build notes.
+    with contextlib.redirect_stdout(sys.stderr if args.json else sys.stdout):
+        cache, report = simulate(garment, motion, shape, config, path=gpath, progress=progress)
+    save_cache(out, cache)
+    for extra in args.export:
+        export_cache(extra, cache)
+    data = report.as_dict()
+    data.update(
+        cache=str(out), garment=args.garment, motion=motion.name, fabric=config.fabric,
+        fps=motion.fps, body_shape=shape.as_dict(),
+    )  # fmt: skip
+    if args.body_check:
+        data["body_mesh_penetration"] = _body_check(cache, motion, shape)
+    if args.preview is not None:
+        from core.sim.preview import contact_sheet
+
+        png = Path(args.preview) if args.preview else _report_path(out, ".preview.png")
+        title = f"{args.garment} / {motion.name} / {config.fabric}"
+        data["preview"] = str(png)
+        data["preview_frames"] = contact_sheet(png, cache, motion, shape, title=title)
+    write_json(_report_path(out, ".report.json"), data)
+    if args.json:
+        print(json.dumps(data, indent=2))
+    else:
+        print(
+            f"{out}: {report.frames} frames x {report.vertices} vertices, "
+            f"{report.ms_per_frame:.0f} ms/frame on {report.device}, "
+            f"strain max {report.strain_max:.3f} (limit {report.strain_limit}), "
+            f"penetration mean {report.penetration_mean_mm:.3f} mm, "
+            f"retried frames {list(report.retried_frames)}"
+        )
+    return 0
+
+
+def _body_check(cache, motion, shape) -> dict:
+    """Penetration of the free garment vertices into the skinned mannequin mesh, in mm."""
+    import numpy as np
+
+    from core.body.mannequin import make_body
+    from core.body.skinning import pose_body
+    from core.sim.simulate import mesh_penetration_depths
+
+    body = make_body(shape)
+    posed = pose_body(body, motion)
+    pinned = cache.params.get("pinned_indices")
+    depth = mesh_penetration_depths(cache.positions, posed, body.faces)
+    if pinned:
+        depth = np.delete(depth, pinned, axis=1)
+    return {
+        "mean_mm": float(depth.mean() * 1000),
+        "p99_mm": float(np.percentile(depth, 99) * 1000),
+        "max_mm": float(depth.max() * 1000),
+        "penetrating_fraction": float((depth > 0).mean()),
+        "body_vertices": int(body.num_vertices),
+    }

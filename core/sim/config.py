@@ -1,0 +1,147 @@
+"""The simulation stage's one config record, and the fabric presets it names."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+from core.errors import InputError
+
+
+@dataclass(frozen=True)
+class Fabric:
+    """Material of a garment, in the units newton's VBD cloth solver takes (SI)."""
+
+    name: str
+    """Preset name, for reports."""
+    density: float
+    """Areal density, kg/m^2 (silk about 0.05, cotton 0.15, denim 0.4)."""
+    stretch_ke: float
+    """Membrane (StVK) stiffness, N/m: resistance to stretch (newton ``tri_ke`` / ``tri_ka``)."""
+    stretch_kd: float
+    """Membrane damping, in newton's units (``tri_kd``)."""
+    bend_ke: float
+    """Bending stiffness, N*m (newton ``edge_ke``): silk drapes, denim stands."""
+    bend_kd: float
+    """Bending damping (``edge_kd``)."""
+    friction: float
+    """Coulomb friction coefficient against the body."""
+    max_strain: float
+    """Largest edge stretch ((l - l0) / l0) the fabric may show (woven fabric gives little);
+    ``SimConfig.blowup_strain`` times it marks a blown-up frame."""
+
+
+#: Fabric presets by name. Stiffness rises and drape falls from silk to denim.
+FABRICS: dict[str, Fabric] = {
+    "silk": Fabric("silk", 0.06, 2.0e3, 1.0e-3, 2.0e-6, 1.0e-7, 0.2, 0.25),
+    "cotton": Fabric("cotton", 0.15, 5.0e3, 2.0e-3, 2.0e-5, 1.0e-6, 0.35, 0.2),
+    "denim": Fabric("denim", 0.40, 1.5e4, 5.0e-3, 2.0e-4, 1.0e-5, 0.5, 0.15),
+}
+
+
+#: Named (substeps, iterations) trade-offs, measured by ``dng bench sim`` on the 1.9k
+#: long skirt under the dance (CPU): ``draft`` about 7 cm mean vertex distance from ``final``
+#: at a quarter of its cost or less; ``final`` within about 6 mm of 16 x 8.
+QUALITY = {"draft": (2, 8), "medium": (4, 8), "final": (8, 16)}
+
+#: Cloth solvers of newton that :func:`core.sim.simulate.simulate` drives.
+SOLVERS = ("style3d", "vbd")
+
+
+def fabric(name: str) -> Fabric:
+    """The preset called ``name``; ``InputError`` listing the choices otherwise."""
+    try:
+        return FABRICS[name]
+    except KeyError:
+        raise InputError(f"unknown fabric {name!r}; choose one of {', '.join(FABRICS)}") from None
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Everything that decides a garment simulation. The GUI edits this same record."""
+
+    fabric: str = "cotton"
+    """Fabric preset name (see :data:`FABRICS`)."""
+    solver: str = "style3d"
+    """``style3d`` (newton's projective-dynamics solver with a PCG global step: converges to
+    low strain in few iterations; the default) or ``vbd`` (vertex block descent: local
+    Gauss-Seidel, needs many more iterations before the fabric stops stretching)."""
+    substeps: int = 8
+    """Solver steps per 1/30 s of motion. Clips at other frame rates get the same physical time
+    step or a finer one: ``ceil(substeps * 30 / fps)`` steps per frame, at least one."""
+    iterations: int = 16
+    """Non-linear solver iterations per step. The defaults (8 x 16, :data:`QUALITY` ``final``)
+    are the trustworthy setting: on the dance, the 1.9k long skirt keeps its stretch within
+    cotton's limit (max 0.16); ``draft`` (2 x 8) is 5x cheaper but ~7 cm off and stretches
+    locally to 0.25."""
+    self_collision: bool | None = None
+    """Cloth-cloth contact. ``None``: on when the garment has several pieces (layers, frills:
+    where layers touch), off for a single surface such as a proxy (nothing to collide with).
+    Costs extra time per step."""
+    transition_s: float = 1.0
+    """Seconds over which the body blends from the garment's rest pose (the mannequin's A-pose)
+    to the clip's first frame, before the clip starts."""
+    settle_s: float = 0.5
+    """Seconds the body then holds the first frame, so the garment is at rest at frame 0."""
+    pin_distance: float = 0.03
+    """Vertices within this distance (metres) of the garment's top boundary loop (a skirt's
+    waistband) are pinned: skinned rigidly to the nearest torso bone, moved every step."""
+    arm_colliders: bool | None = None
+    """Whether the arms collide with the garment. ``None``: only for garments reaching above
+    the chest (dresses, tops). A skirt leaves them out: an arm pressed to the hip would pinch
+    the fabric between two rigid colliders, with nowhere to go, and tear it; the hands pass
+    through the skirt instead."""
+    collision_margin: float = 0.004
+    """Thickness kept between cloth and body (metres): the particle radius in contacts."""
+    contact_gap: float = 0.01
+    """Extra distance (metres) at which body contacts are detected ahead of touching, so a fast
+    limb is seen before it passes through the cloth within one step."""
+    contact_ke: float = 1.0e4
+    """Body-contact stiffness, N/m."""
+    max_retries: int = 2
+    """Times a frame that blows up is retried, each with twice the steps, before giving up."""
+    blowup_strain: float = 5.0
+    """A frame whose largest edge strain passes this multiple of the fabric's ``max_strain``
+    counts as blown up (numerical blow-ups give strains of several times the rest length; a
+    fold pinched between two colliders stays below this)."""
+    max_speed: float = 30.0
+    """A vertex faster than this (m/s) counts as a blow-up (a body part rarely moves faster
+    than 10 m/s)."""
+    device: str = "cpu"
+    """Warp device: ``cpu`` or ``cuda`` / ``cuda:0``."""
+
+    def __post_init__(self) -> None:
+        fabric(self.fabric)
+        if self.solver not in SOLVERS:
+            raise InputError(f"unknown solver {self.solver!r}; choose one of {', '.join(SOLVERS)}")
+        checks = {
+            "substeps": self.substeps >= 1,
+            "iterations": self.iterations >= 1,
+            "transition_s": self.transition_s >= 0,
+            "settle_s": self.settle_s >= 0,
+            "pin_distance": self.pin_distance >= 0,
+            "collision_margin": self.collision_margin > 0,
+            "contact_ke": self.contact_ke > 0,
+            "contact_gap": self.contact_gap >= 0,
+            "max_retries": self.max_retries >= 0,
+            "max_speed": self.max_speed > 0,
+            "blowup_strain": self.blowup_strain >= 1,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise InputError(
+                    f"simulation setting {name}={getattr(self, name)!r} is out of range"
+                )
+
+    @property
+    def material(self) -> Fabric:
+        return fabric(self.fabric)
+
+    def steps_per_frame(self, fps: float) -> int:
+        """Solver steps per motion frame at ``fps`` (constant physical step across rates)."""
+        return max(1, math.ceil(self.substeps * 30.0 / fps - 1e-9))
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["fabric_params"] = asdict(self.material)
+        return d

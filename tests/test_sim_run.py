@@ -1,0 +1,131 @@
+"""Short cloth simulations (newton on CPU): a settled start, determinism, blow-up handling, CLI.
+
+The first run in a fresh environment compiles warp kernels (a minute or two, then cached).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from core.body.shape import BodyShape
+from core.motion.motion import Motion
+from core.sim.cache import load_cache
+from core.sim.config import SimConfig
+from core.sim.simulate import SimulationError, edge_strain, simulate, unique_edges
+from core.skeleton import rotation_about
+from tests.sim_helpers import frustum_skirt, spin_motion
+
+pytest.importorskip("newton")
+
+#: Fast settings for tests: short lead-in, few steps.
+FAST = SimConfig(substeps=2, iterations=4, transition_s=0.2, settle_s=0.2)
+
+
+@pytest.fixture(scope="module")
+def skirt():
+    return frustum_skirt(24, 12)
+
+
+@pytest.fixture(scope="module")
+def first_run(skirt):
+    return simulate(skirt, spin_motion(6), BodyShape(), FAST)
+
+
+def test_short_simulation_is_settled_and_sane(skirt, first_run):
+    cache, report = first_run
+    assert cache.positions.shape == (6, skirt.num_vertices, 3)
+    assert cache.positions.dtype == np.float32 and report.finite
+    assert np.isfinite(cache.positions).all()
+    # Gravity pulled the hem down a little, the waistband stayed on the body.
+    assert cache.positions[0, :, 1].min() < skirt.vertices[:, 1].min()
+    e = unique_edges(skirt.faces)
+    rest = np.linalg.norm(skirt.vertices[e[:, 1]] - skirt.vertices[e[:, 0]], axis=1)
+    strain = edge_strain(cache.positions, e, rest)
+    assert report.strain_max == pytest.approx(float(strain.max()), rel=1e-5)
+    assert report.compression_max == pytest.approx(float(-strain.min()), rel=1e-5)
+    assert report.strain_max < report.strain_limit
+    assert report.penetration_mean_mm < 2.0
+    assert report.frames == 6 and report.steps_per_frame == 2
+    assert report.ms_per_frame > 0 and report.pinned >= 24
+    assert cache.params["sim"]["fabric"] == "cotton" and cache.params["steps_per_frame"] == 2
+
+
+def test_same_inputs_give_the_same_cache(skirt, first_run):
+    again, _ = simulate(skirt, spin_motion(6), BodyShape(), FAST)
+    assert np.array_equal(again.positions, first_run[0].positions)
+
+
+def test_spin_moves_the_skirt_with_the_body(first_run):
+    cache, _ = first_run
+    # The body turns 0.5 turn/s: the waistband (pinned) turns with it, about 6 degrees a frame.
+    top = cache.positions[:, :24]
+    ang = np.arctan2(top[:, :, 0], top[:, :, 2])
+    turn = np.degrees(np.angle(np.exp(1j * (ang[-1] - ang[0]))).mean())
+    assert turn == pytest.approx(5 * 6.0, abs=2.0)
+
+
+def test_blow_up_is_detected_and_nothing_is_returned(skirt):
+    # A speed limit no garment can keep: every retry fails and the run stops with a clear error.
+    cfg = replace(FAST, max_speed=1e-4, max_retries=1)
+    with pytest.raises(SimulationError, match=r"runaway speed .* 1 retries"):
+        simulate(skirt, spin_motion(3), BodyShape(), cfg, path="skirt.obj")
+
+
+def test_cli_simulate_writes_cache_report_and_refuses_garbage(tmp_path, skirt, capsys):
+    from app.cli import main
+    from core.mesh import save_mesh
+    from core.motion.bvh import write_bvh
+
+    save_mesh(tmp_path / "skirt.obj", skirt)
+    write_bvh(tmp_path / "spin.bvh", spin_motion(4))
+    args = [
+        "simulate", "--garment", str(tmp_path / "skirt.obj"), "--motion", str(tmp_path / "spin.bvh"),
+        "--substeps", "2", "--iterations", "4", "--transition", "0.2", "--json",
+        "--out", str(tmp_path / "c.npz"), "--export", str(tmp_path / "c.pc2"),
+    ]  # fmt: skip
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["finite"] and report["frames"] == 4
+    assert (tmp_path / "c.report.json").is_file()
+    cache = load_cache(tmp_path / "c.npz")
+    assert cache.positions.shape == (4, skirt.num_vertices, 3)
+    # Round trip through the PC2 export and the import path of the CLI.
+    imp = ["simulate", "--import", str(tmp_path / "c.pc2"), "--garment", str(tmp_path / "skirt.obj"),
+           "--out", str(tmp_path / "i.npz"), "--fps", "30"]  # fmt: skip
+    assert main(imp) == 0
+    assert np.array_equal(load_cache(tmp_path / "i.npz").positions, cache.positions)
+    # A garment with another vertex count is refused, with the file named.
+    save_mesh(tmp_path / "other.obj", frustum_skirt(20, 12))
+    imp[4] = str(tmp_path / "other.obj")
+    assert main(imp) == 2
+    assert "topology mismatch" in capsys.readouterr().err
+
+
+def test_frame_zero_is_settled_by_the_lead_in(skirt):
+    # A clip that holds a pose far from the rest pose: turned 60 degrees, hips shifted 5 cm.
+    m = spin_motion(3, turns_per_s=0.0)
+    rot = m.rotations.copy()
+    rot[:, 0] = rotation_about([0, 1, 0], np.radians(60.0))
+    held = Motion(m.skeleton, rot, m.root_positions + np.float32([0.05, 0, 0]), m.fps)
+    settled, _ = simulate(skirt, held, BodyShape(), replace(FAST, settle_s=0.6))
+    moved = np.linalg.norm(settled.positions[2] - settled.positions[0], axis=1).max()
+    # Without the lead-in the body jumps to the pose at once and the skirt is still swinging.
+    cold, _ = simulate(
+        skirt, held, BodyShape(), replace(FAST, transition_s=0.0, settle_s=0.0, max_speed=1e3)
+    )
+    swinging = np.linalg.norm(cold.positions[2] - cold.positions[0], axis=1).max()
+    assert moved < 0.002 < swinging, (moved, swinging)
+
+
+def test_layered_garment_turns_self_collision_on():
+    from tests.sim_helpers import two_layer_skirt
+
+    layered = two_layer_skirt()
+    cache, report = simulate(layered, spin_motion(3), BodyShape(), FAST)
+    assert cache.params["sim"]["self_collision"] is True
+    assert report.finite and report.strain_max < report.strain_limit
+    assert report.pinned >= 48  # both waistbands
