@@ -1,0 +1,282 @@
+"""Neural renderer: parts and shapes, losses and VGG loading, live inference (crop, stream)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from core.camera import make_camera
+from core.errors import InputError
+from core.features import joint_window
+from core.mesh import Mesh
+from core.raster import MeshScene
+from core.shading import render_background
+from tests.conftest import assert_close
+from training.losses import (
+    VGG19_CHANNELS,
+    _tap_indices,
+    feature_matching,
+    gan_d_loss,
+    gan_g_loss,
+    load_perceptual,
+    vgg_features,
+)
+from training.renderer import (
+    PRESETS,
+    FrameState,
+    NeuralRenderer,
+    PatchDiscriminator,
+    RenderBatch,
+    RendererConfig,
+    RenderNet,
+    synthetic_scene,
+)
+from training.renderer.model import NeuralTexture, receptive_field
+
+torch.set_num_threads(1)  # 2 threads on the shared 2-core machine are ~50x slower
+TINY_VGG = (4, 0, 6, 0, 8, 0, 8, 0, 8)
+
+
+def _inputs(cfg: RendererConfig, b: int, size: int, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    mask = (torch.rand(b, 1, size, size, generator=g) > 0.5).float()
+    uv = torch.rand(b, 2, size, size, generator=g) * mask
+    motion = torch.rand(b, cfg.motion_channels, size, size, generator=g) * mask
+    return uv, motion, mask
+
+
+# -- config ------------------------------------------------------------------------------------
+
+
+def test_presets_and_config_checks():
+    cpu, paper = PRESETS["cpu"], PRESETS["paper"]
+    assert cpu == RendererConfig()
+    assert cpu.image_size == 128 and paper.image_size == 512
+    assert paper.in_channels == 64 + 95 == 159
+    assert paper.image_size // paper.stride == 16 and paper.max_width == 512
+    assert RendererConfig(use_motion=False).in_channels == 64
+    assert RendererConfig.from_dict(paper.to_dict()) == paper
+    with pytest.raises(InputError, match="divisible"):
+        RendererConfig(image_size=100, n_down=3)
+    with pytest.raises(InputError, match="gan_mode"):
+        RendererConfig(gan_mode="wgan")
+    with pytest.raises(InputError, match="unknown renderer config"):
+        RendererConfig.from_dict({"nope": 1})
+
+
+# -- parts ---------------------------------------------------------------------------------------
+
+
+def test_texture_samples_texel_centres_exactly_and_masks():
+    tex = NeuralTexture((8, 4), 2, seed=3)
+    s = 8
+    rows, cols = torch.meshgrid(torch.arange(s), torch.arange(s), indexing="ij")
+    uv = torch.stack([(cols + 0.5) / s, 1 - (rows + 0.5) / s])[None].float()  # (1, 2, 8, 8)
+    mask = torch.ones(1, 1, s, s)
+    mask[..., 0, 0] = 0
+    out = tex(uv, mask)
+    assert out.shape == (1, 4, s, s)
+    expected = tex.levels[0][0].detach().clone()
+    expected[:, 0, 0] = 0
+    assert_close(out[0, :2].detach(), expected, atol=1e-6, what="level 0 at texel centres")
+    assert float(out[0, :, 0, 0].detach().abs().max()) == 0.0
+
+
+@pytest.mark.parametrize("name", ["tiny", "cpu"])
+def test_render_net_shapes(name):
+    cfg = PRESETS[name]
+    torch.manual_seed(0)
+    net = RenderNet(cfg)
+    size = 2 * cfg.stride
+    uv, motion, mask = _inputs(cfg, 2, size)
+    x = net.input_features(uv, motion, mask)
+    assert x.shape == (2, cfg.in_channels, size, size)
+    z = net.encode(x)
+    assert z.shape == (2, net.encoder.out_channels, 2, 2)
+    with torch.no_grad():
+        rgb, a = net(uv, motion, mask, uv, motion, mask, torch.rand(2, 3, size, size))
+    assert rgb.shape == (2, 3, size, size) and a.shape == (2, 1, size, size)
+    assert float(rgb.min()) >= 0 and float(rgb.max()) <= 1
+    # zero in, zero out: the encoder of an empty frame is exactly zero
+    with torch.no_grad():
+        assert float(net.encode(torch.zeros_like(x)).abs().max()) == 0.0
+
+
+def test_paper_latent_and_ablation_without_motion():
+    paper = PRESETS["paper"]
+    torch.manual_seed(0)
+    net = RenderNet(paper)
+    assert net.encoder.out_channels == 512
+    x = torch.rand(1, paper.in_channels, 64, 64)  # 512 px gives 16 x 16; 64 px gives 2 x 2
+    assert net.encode(x).shape == (1, 512, 2, 2)
+    cfg = PRESETS["tiny"].replace(use_motion=False)
+    net = RenderNet(cfg)
+    uv, _, mask = _inputs(cfg, 1, 8)
+    assert net.input_features(uv, None, mask).shape == (1, cfg.texture_out_channels, 8, 8)
+    rgb, _ = net(uv, None, mask, uv, None, mask, torch.rand(1, 3, 8, 8))
+    assert rgb.shape == (1, 3, 8, 8)
+
+
+def test_discriminator_is_a_70px_spectral_norm_patchgan():
+    d = PatchDiscriminator(8)
+    assert receptive_field([(4, 2), (4, 2), (4, 2), (4, 1), (4, 1)]) == 70
+    assert all(hasattr(layer, "parametrizations") for layer in [*d.layers, d.head])
+    x = torch.rand(1, 6, 128, 128, requires_grad=True)
+    logits, feats = d(x)
+    assert logits.shape == (1, 1, 14, 14) and len(feats) == 4
+    logits[0, 0, 7, 7].backward()
+    nz = (x.grad[0].abs().sum(0) > 0).nonzero()
+    extent = (nz.max(0).values - nz.min(0).values + 1).tolist()
+    assert extent == [70, 70]
+
+
+def test_render_batch_contract():
+    cfg = PRESETS["tiny"]
+    s = {
+        "uv": torch.zeros(3, 2, 8, 8),
+        "motion": torch.zeros(3, 95, 8, 8),
+        "proxy_mask": torch.zeros(3, 1, 8, 8),
+        "target": torch.zeros(3, 3, 8, 8),
+        "background": torch.zeros(3, 3, 8, 8),
+        "target_mask": torch.zeros(3, 1, 8, 8),
+    }
+    b = RenderBatch.from_dict(s)
+    assert b.uv.shape == (1, 3, 2, 8, 8) and b.size == (8, 8)
+    inp = b.generator_inputs(cfg.use_motion)
+    assert inp["motion"].shape == (1, 95, 8, 8) and inp["background"].shape == (1, 3, 8, 8)
+    bad = dict(s, target=torch.zeros(3, 4, 8, 8))
+    with pytest.raises(InputError, match=r"data\.pt: sample\['target'\]"):
+        RenderBatch.from_dict(bad, name="data.pt")
+    with pytest.raises(InputError, match="missing"):
+        RenderBatch.from_dict({k: v for k, v in s.items() if k != "uv"})
+
+
+# -- losses ----------------------------------------------------------------------------------------
+
+
+def test_gan_and_feature_matching_losses():
+    real, fake = torch.full((2, 1, 3, 3), 2.0), torch.full((2, 1, 3, 3), -2.0)
+    assert float(gan_d_loss(real, fake, "hinge")) == 0.0
+    assert float(gan_d_loss(fake, real, "hinge")) == pytest.approx(6.0)
+    assert float(gan_d_loss(torch.ones(4), torch.zeros(4), "lsgan")) == 0.0
+    assert float(gan_g_loss(torch.ones(4), "lsgan")) == 0.0
+    assert float(gan_g_loss(fake, "hinge")) == pytest.approx(2.0)
+    f = [torch.rand(1, 4, 5, 5), torch.rand(1, 8, 2, 2)]
+    assert float(feature_matching(f, f)) == 0.0
+    assert float(feature_matching(f, [t + 1 for t in f])) == pytest.approx(1.0)
+
+
+def test_vgg19_layout_matches_torchvision():
+    feats = vgg_features(VGG19_CHANNELS)
+    convs = [i for i, m in enumerate(feats) if isinstance(m, torch.nn.Conv2d)]
+    assert convs == [0, 2, 5, 7, 10, 12, 14, 16, 19, 21, 23, 25, 28, 30, 32, 34]
+    assert len(feats) == 37  # torchvision's vgg19().features
+    assert _tap_indices(VGG19_CHANNELS) == [1, 6, 11, 20, 29]  # relu1_1 ... relu5_1
+    assert tuple(feats.state_dict()["34.weight"].shape) == (512, 512, 3, 3)
+
+
+def _save_vgg(path, channels, seed=0):
+    torch.manual_seed(seed)
+    feats = vgg_features(channels)
+    state = {f"features.{k}": v for k, v in feats.state_dict().items()}
+    state["classifier.0.weight"] = torch.zeros(2, 2)  # ignored, as in a full torchvision file
+    torch.save(state, path)
+    return feats
+
+
+def test_perceptual_loss_loads_from_torchvision_layout_file(tmp_path):
+    path = tmp_path / "vgg.pth"
+    ref = _save_vgg(path, TINY_VGG)
+    assert load_perceptual("", TINY_VGG) is None  # no file: off
+    loss = load_perceptual(path, TINY_VGG)
+    for k, v in ref.state_dict().items():
+        assert torch.equal(loss.features.state_dict()[k], v), k
+    assert not any(p.requires_grad for p in loss.parameters())
+    x, y = torch.rand(1, 3, 32, 32), torch.rand(1, 3, 32, 32)
+    assert float(loss(x, x)) == 0.0
+    pred = x.clone().requires_grad_(True)
+    out = loss(pred, y)
+    out.backward()
+    assert float(out.detach()) > 0 and pred.grad.abs().sum() > 0
+    with pytest.raises(InputError, match="missing.*vgg_missing.pth|vgg_missing.pth.*not found"):
+        load_perceptual(tmp_path / "vgg_missing.pth", TINY_VGG)
+    with pytest.raises(InputError, match="features.0.weight has shape"):
+        load_perceptual(path, (5, 0, 6))
+    torch.save({"x": torch.zeros(1)}, tmp_path / "other.pth")
+    with pytest.raises(InputError, match="other.pth: not a torchvision VGG"):
+        load_perceptual(tmp_path / "other.pth", TINY_VGG)
+
+
+# -- inference ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def live():
+    sc = synthetic_scene(5)
+    cam = make_camera((0.0, 0.9, 2.5), (0.0, 0.8, 0.0), width=64, height=64)
+    frames = [
+        FrameState(
+            sc.proxy[t],
+            joint_window(sc.joints, t),
+            render_background(Mesh(sc.body[t], sc.body_faces), cam),
+        )
+        for t in range(len(sc.proxy))
+    ]
+    return sc, cam, frames
+
+
+@pytest.mark.parametrize("name", ["tiny", "cpu"])
+def test_streaming_equals_batch_and_encodes_each_frame_once(live, name):
+    sc, cam, frames = live
+    torch.manual_seed(1)
+    r = NeuralRenderer(RenderNet(PRESETS[name]), sc.faces, sc.uvs)
+    stream = [r.render(cam, f) for f in frames]
+    assert r.encodes == len(frames)  # the crop stays put: t-1's latent is reused
+    for t, img in enumerate(stream):
+        assert img.shape == (64, 64, 3) and img.dtype == np.uint8
+        ref = r.render_pair(cam, frames[t], frames[t - 1] if t else None)
+        assert np.array_equal(img, ref), f"frame {t}"
+    # a new camera: t-1 is encoded again in the new crop, still equal to the batch render
+    cam2 = make_camera((0.8, 1.0, 2.3), (0.0, 0.8, 0.0), width=64, height=64)
+    frame = FrameState(frames[2].vertices, frames[2].window, frames[2].background)
+    r.reset()
+    n = r.encodes
+    r.render(cam2, frames[1])  # first frame of a new stream: encoded once, t-1 := t
+    assert r.encodes == n + 1
+    img = r.render(cam2, frame, previous=frames[1])
+    same_crop = r.crop_box(cam2, frames[1]) == r.crop_box(cam2, frame)
+    assert r.encodes == n + 1 + (1 if same_crop else 2)
+    assert np.array_equal(img, r.render_pair(cam2, frame, frames[1]))
+
+
+@pytest.mark.parametrize("name", ["tiny", "cpu"])
+def test_crop_render_matches_full_frame_and_background_outside(live, name):
+    sc, cam, frames = live
+    torch.manual_seed(2)
+    r = NeuralRenderer(RenderNet(PRESETS[name]), sc.faces, sc.uvs)
+    t = 3
+    crop = r.render_pair(cam, frames[t], frames[t - 1])
+    full = r.render_pair(cam, frames[t], frames[t - 1], crop=False)
+    box = r.crop_box(cam, frames[t])
+    assert box.x0 % r.config.stride == 0 and box.width % r.config.stride == 0
+    inside = np.zeros((64, 64), bool)
+    inside[max(box.y0, 0) : box.y0 + box.height, max(box.x0, 0) : box.x0 + box.width] = True
+    proxy = MeshScene(sc.proxy[t], sc.faces).rasterize(cam).mask
+    assert proxy.any() and not (proxy & ~inside).any()
+    diff = np.abs(crop.astype(int) - full.astype(int))
+    assert diff[proxy].max() <= 2, diff[proxy].max()  # on the garment: within 2/255
+    assert diff[inside].mean() < 1.0
+    assert np.array_equal(crop[~inside], frames[t].background[~inside])
+    assert not np.array_equal(crop[inside], frames[t].background[inside])
+
+
+def test_render_without_visible_proxy_is_the_background(live):
+    sc, _, frames = live
+    away = make_camera((0.0, 0.9, 2.5), (0.0, 0.9, 10.0), width=32, height=32)  # looks away
+    bg = np.full((32, 32, 3), 7, np.uint8)
+    r = NeuralRenderer(RenderNet(PRESETS["tiny"]), sc.faces, sc.uvs)
+    f = FrameState(frames[0].vertices, frames[0].window, bg)
+    assert np.array_equal(r.render(away, f), bg)
+    with pytest.raises(InputError, match="background must be"):
+        r.render(make_camera((0, 0.9, 2.5), (0, 0.8, 0), width=64, height=64), f)

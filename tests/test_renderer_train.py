@@ -1,0 +1,225 @@
+"""Neural renderer training: loss goes down, resume, NaN guard, fine-tuning, torchrun (DDP)."""
+
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from core.errors import InputError
+from training.losses import vgg_features
+from training.renderer import (
+    PRESETS,
+    SyntheticDataset,
+    background_finetune_parameters,
+    finetune_background,
+    finetune_body,
+    load_model,
+    synthetic_scene,
+    train_renderer,
+)
+
+torch.set_num_threads(1)  # 2 threads on the shared 2-core machine are ~50x slower
+ROOT = Path(__file__).resolve().parents[1]
+TINY = PRESETS["tiny"]
+
+
+@pytest.fixture(scope="module")
+def data():
+    return SyntheticDataset(synthetic_scene(6), TINY.image_size, cameras_per_frame=2, seed=0)
+
+
+def _rows(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _state(res):
+    return {
+        **{f"g.{k}": v.clone() for k, v in res.net.state_dict().items()},
+        **{f"d.{k}": v.clone() for k, v in res.discriminator.state_dict().items()},
+    }
+
+
+def test_training_lowers_the_loss_with_perceptual_on(data, tmp_path):
+    vgg = tmp_path / "vgg.pth"
+    torch.manual_seed(0)
+    channels = (4, 0, 6, 0, 8)
+    torch.save({f"features.{k}": v for k, v in vgg_features(channels).state_dict().items()}, vgg)
+    cfg = TINY.replace(
+        steps=30,
+        log_every=10,
+        lr_g=2e-3,
+        preview_every=30,
+        vgg_path=str(vgg),
+        vgg_channels=channels,
+    )
+    res = train_renderer(data, tmp_path / "run", cfg, progress=False)
+    rows = _rows(res.log_path)
+    assert [int(r["step"]) for r in rows] == [10, 20, 30]
+    assert res.perceptual and rows[0]["perceptual"] != "off"
+    l1 = [float(r["l1"]) for r in rows]
+    assert l1[-1] < 0.8 * l1[0], l1
+    assert (tmp_path / "run" / "previews" / "step_000030.png").is_file()
+    cfg2, net, disc = load_model(res.model_path)
+    assert cfg2 == cfg and disc is not None
+    for k, v in res.net.state_dict().items():
+        assert torch.equal(net.state_dict()[k], v)
+
+
+def test_resume_after_kill_gives_the_same_weights(data, tmp_path):
+    cfg = TINY.replace(steps=9, checkpoint_every=4, log_every=2, preview_every=0)
+    full = train_renderer(data, tmp_path / "a", cfg, progress=False)
+    assert full.perceptual is False and _rows(full.log_path)[0]["perceptual"] == "off"
+
+    class Kill(Exception):
+        pass
+
+    def kill(step, losses):
+        if step == 6:
+            raise Kill
+
+    with pytest.raises(Kill):
+        train_renderer(data, tmp_path / "b", cfg, progress=False, callback=kill)
+    resumed = train_renderer(data, tmp_path / "b", cfg, progress=False)
+    assert resumed.resumed_at_step == 4
+    a, b = _state(full), _state(resumed)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    assert strip(_rows(full.log_path)) == strip(_rows(resumed.log_path))
+    with pytest.raises(InputError, match="different config"):
+        train_renderer(data, tmp_path / "b", cfg.replace(lr_d=1e-3), progress=False)
+
+
+class _Poisoned(torch.utils.data.Dataset):
+    """The synthetic set with NaN in one sample's target."""
+
+    def __init__(self, base, bad: int):
+        self.base, self.bad = base, bad
+
+    def __len__(self):
+        return len(self.base)
+
+    def __getitem__(self, i):
+        s = self.base[i]
+        if i == self.bad:
+            s = dict(s, target=torch.full_like(s["target"], float("nan")))
+        return s
+
+
+def test_nan_guard_skips_reports_and_counts(data, tmp_path, monkeypatch):
+    import training.renderer.train as tr
+
+    cfg = TINY.replace(steps=6, log_every=3, preview_every=0)
+    seen, untouched = [], []
+    orig = tr._Trainer.train_step
+
+    def step(self, batch):  # record whether a skipped step left the weights alone
+        before = [p.detach().clone() for p in (*self.net.parameters(), *self.disc.parameters())]
+        out = orig(self, batch)
+        after = [*self.net.parameters(), *self.disc.parameters()]
+        if out is None:
+            untouched.append(all(torch.equal(a, b) for a, b in zip(before, after)))
+        return out
+
+    monkeypatch.setattr(tr._Trainer, "train_step", step)
+    res = train_renderer(
+        _Poisoned(data, 3), tmp_path, cfg, progress=False, callback=lambda s, l: seen.append(l)
+    )
+    snapshots = [(losses, None) for losses in seen]
+    n_skip = sum(losses is None for losses, _ in snapshots)
+    assert 1 <= n_skip < 6 and res.skipped_steps == n_skip
+    assert untouched == [True] * n_skip  # skipped steps leave the weights untouched
+    rows = _rows(res.log_path)
+    assert int(rows[-1]["skipped"]) == n_skip
+    assert all(math.isfinite(float(r["loss_g"])) for r in rows if r["loss_g"])
+    assert all(torch.isfinite(p).all() for p in res.net.parameters())
+
+
+def test_finetuning_touches_only_what_it_should(data, tmp_path):
+    cfg = TINY.replace(steps=8, preview_every=0)
+    base = train_renderer(data, tmp_path / "base", cfg, progress=False)
+    g0, d0 = _state(base), None
+    d0 = {k: v for k, v in g0.items() if k.startswith("d.")}
+
+    bg = finetune_background(base.model_path, data, tmp_path / "bg", steps=3, progress=False)
+    assert bg.steps == 3
+    names = set(background_finetune_parameters(bg.net))
+    assert any(n.startswith("refiner.") for n in names)
+    assert any(n.startswith("decoder.ups.") for n in names)
+    assert not any(n.startswith(("texture.", "encoder.", "spade.")) for n in names)
+    for n, p in bg.net.named_parameters():
+        if n in names:
+            assert not torch.equal(p, g0[f"g.{n}"]), f"{n} did not train"
+        else:
+            assert torch.equal(p, g0[f"g.{n}"]), f"{n} changed but is frozen"
+    d1 = dict(bg.discriminator.named_parameters())
+    assert any(not torch.equal(d1[k[2:]], v) for k, v in d0.items() if k[2:] in d1)
+
+    body = finetune_body(base.model_path, data, tmp_path / "body", progress=False)
+    assert body.steps == math.ceil(0.25 * cfg.steps) == 2
+    changed = [not torch.equal(p, g0[f"g.{n}"]) for n, p in body.net.named_parameters()]
+    assert all(changed), "body fine-tuning trains every parameter"
+
+
+def test_torchrun_two_processes_end_with_equal_weights(tmp_path):
+    out = tmp_path / "ddp"
+    cmd = [
+        sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+        "-m", "training.renderer.ddp", "--out", str(out), "--preset", "tiny", "--steps", "3",
+        "--synthetic", "4", "--cameras", "2", "--dump-weights",
+    ]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    w0 = torch.load(out / "rank0_weights.pt", weights_only=True)
+    w1 = torch.load(out / "rank1_weights.pt", weights_only=True)
+    for part in ("generator", "discriminator"):
+        assert w0[part].keys() == w1[part].keys()
+        for k in w0[part]:
+            assert torch.equal(w0[part][k], w1[part][k]), f"{part}.{k}"
+    torch.manual_seed(TINY.seed)
+    from training.renderer import RenderNet
+
+    init = RenderNet(TINY).state_dict()
+    assert any(not torch.equal(init[k], w0["generator"][k]) for k in init)  # it trained
+    assert len(_rows(out / "renderer_loss.csv")) >= 1
+
+
+def test_sigkill_mid_run_then_rerun_continues_to_the_same_weights(tmp_path):
+    """A real ``kill -9`` of a training process; the rerun resumes from the last checkpoint."""
+    import os
+    import signal
+    import time
+
+    def cmd(out):
+        return [
+            sys.executable, "-m", "training.renderer.ddp", "--out", str(out), "--preset", "tiny",
+            "--steps", "60", "--synthetic", "4", "--cameras", "2", "--dump-weights",
+        ]  # fmt: skip
+
+    ref = subprocess.run(cmd(tmp_path / "ref"), cwd=ROOT, capture_output=True, timeout=240)
+    assert ref.returncode == 0, ref.stderr[-2000:]
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(
+        cmd(out), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    deadline = time.time() + 120
+    while not (out / "renderer_train.pt").is_file() and time.time() < deadline:
+        time.sleep(0.02)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "renderer.pt").is_file(), "the run finished before it was killed"
+    again = subprocess.run(cmd(out), cwd=ROOT, capture_output=True, timeout=240)
+    assert again.returncode == 0, again.stderr[-2000:]
+    a = torch.load(tmp_path / "ref" / "rank0_weights.pt", weights_only=True)
+    b = torch.load(out / "rank0_weights.pt", weights_only=True)
+    for part in ("generator", "discriminator"):
+        for k in a[part]:
+            assert torch.equal(a[part][k], b[part][k]), f"{part}.{k}"

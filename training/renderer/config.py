@@ -1,0 +1,206 @@
+"""The neural renderer's configuration and named presets."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+from core.errors import InputError
+
+#: Channels of the paper's motion features: 19 joints x 5 frames (core.features layout).
+MOTION_CHANNELS = 95
+GAN_MODES = ("hinge", "lsgan")
+
+
+@dataclass(frozen=True)
+class RendererConfig:
+    """Neural texture, rendering network, discriminator, losses and training schedule.
+
+    The defaults are the ``cpu`` preset (small widths, 128 px); ``PRESETS["paper"]`` has the
+    published sizes (DESIGN, "The method").
+    """
+
+    image_size: int = 128
+    """Training image size in pixels (square); the network works on any size divisible by
+    ``2 ** n_down`` at inference."""
+    texture_sizes: tuple[int, ...] = (512, 256, 128, 64)
+    """Texels per side of each neural-texture level (sampled bilinearly, concatenated)."""
+    texture_channels: int = 16
+    """Channels per texture level (4 levels x 16 = 64 channels in the paper)."""
+    motion_channels: int = MOTION_CHANNELS
+    """Channels of the motion-feature map (19 joints x 5 frames)."""
+    use_motion: bool = True
+    """Feed the motion features to the network (False: the "without motion features" ablation)."""
+    base_width: int = 16
+    """Channels of the encoder's first layer; each downsampling doubles it up to ``max_width``.
+    The speed knob."""
+    max_width: int = 128
+    """Channels of the latent code (512 in the paper: 16 x 16 x 512 at 512 px)."""
+    n_down: int = 3
+    """Stride-2 encoder stages: the latent is ``image_size / 2 ** n_down`` per side."""
+    decoder_features: int = 16
+    """Channels of the garment features U, of the background features and of the refinement
+    blocks."""
+    background_width: int = 16
+    """Hidden channels of the small conv net that turns the background image into features."""
+    disc_width: int = 16
+    """Channels of the discriminator's first layer (64 in the paper's PatchGAN)."""
+    gan_mode: str = "hinge"
+    """GAN loss: ``hinge`` (default) or ``lsgan``."""
+    vgg_path: str = ""
+    """torchvision-layout VGG19 ``.pth`` (``features.N.weight`` keys) for the perceptual loss;
+    empty turns the perceptual loss off (the log says so)."""
+    vgg_channels: tuple[int, ...] = ()
+    """Conv widths of the VGG (0 = max pool) when not VGG19's; empty means VGG19. For tests."""
+    w_l1: float = 10.0
+    """Weight of L1 (the paper: 10 x (L1 + perceptual))."""
+    w_perceptual: float = 10.0
+    """Weight of the perceptual loss."""
+    w_fm: float = 5.0
+    """Weight of discriminator feature matching."""
+    w_gan: float = 0.5
+    """Weight of the generator's GAN loss."""
+    lr_g: float = 1e-4
+    """Adam learning rate of the network and the neural texture."""
+    lr_d: float = 3e-4
+    """Adam learning rate of the discriminator."""
+    betas: tuple[float, float] = (0.5, 0.999)
+    """Adam betas of both optimisers."""
+    batch_size: int = 2
+    """Samples per step (per process under torchrun)."""
+    steps: int = 1000
+    """Optimisation steps of a from-scratch run (cpu preset: about 15 minutes on one core)."""
+    body_finetune_fraction: float = 0.25
+    """Fine-tuning to a new body shape runs this fraction of ``steps`` by default."""
+    background_finetune_steps: int = 200
+    """Default steps of fine-tuning to a new background / lighting."""
+    crop_margin: int = 16
+    """Pixels added around the proxy's screen box before the crop is snapped to the stride."""
+    seed: int = 0
+    """Seeds initial weights and sample order: the same seed gives the same weights."""
+    checkpoint_every: int = 100
+    """Steps between resumable checkpoints."""
+    log_every: int = 10
+    """Steps between rows of the CSV loss log (means since the last row)."""
+    preview_every: int = 200
+    """Steps between preview PNGs (prediction | ground truth); 0 turns them off."""
+    mixed_precision: bool = True
+    """Use autocast + GradScaler on CUDA (ignored on CPU, which always trains in float32)."""
+
+    def __post_init__(self) -> None:
+        positive = (
+            "image_size", "texture_channels", "base_width", "max_width", "n_down",
+            "decoder_features", "background_width", "disc_width", "batch_size",
+            "checkpoint_every", "log_every",
+        )  # fmt: skip
+        for name in positive:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, int) and v > 0):
+                raise InputError(f"renderer config {name}={v!r} must be a positive integer")
+        for name in (
+            "steps",
+            "seed",
+            "preview_every",
+            "crop_margin",
+            "motion_channels",
+            "background_finetune_steps",
+        ):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, int) and v >= 0):
+                raise InputError(f"renderer config {name}={v!r} must be an integer >= 0")
+        if not self.texture_sizes or any(
+            not isinstance(s, int) or s < 2 for s in self.texture_sizes
+        ):
+            raise InputError(f"texture_sizes={self.texture_sizes!r} must be integers >= 2")
+        if self.image_size % self.stride:
+            raise InputError(
+                f"image_size {self.image_size} must be divisible by 2 ** n_down = {self.stride}"
+            )
+        if self.gan_mode not in GAN_MODES:
+            raise InputError(f"gan_mode must be one of {GAN_MODES}, got {self.gan_mode!r}")
+        if any(not isinstance(c, int) or c < 0 for c in self.vgg_channels):
+            raise InputError(f"vgg_channels={self.vgg_channels!r} must be integers >= 0")
+        for name in ("w_l1", "w_perceptual", "w_fm", "w_gan", "lr_g", "lr_d"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"renderer config {name}={v!r} must be a finite number >= 0")
+        if not 0.0 < self.body_finetune_fraction <= 1.0:
+            raise InputError(
+                f"body_finetune_fraction={self.body_finetune_fraction!r} must be in (0, 1]"
+            )
+
+    @property
+    def stride(self) -> int:
+        """Pixels per latent cell: inputs must be a multiple of it per side."""
+        return 2**self.n_down
+
+    @property
+    def texture_out_channels(self) -> int:
+        """Channels sampled from the neural texture (all levels)."""
+        return len(self.texture_sizes) * self.texture_channels
+
+    @property
+    def in_channels(self) -> int:
+        """Network input channels: texture + motion (159 in the paper), texture only without motion."""
+        return self.texture_out_channels + (self.motion_channels if self.use_motion else 0)
+
+    def to_dict(self) -> dict:
+        """Plain types only (tuples as lists): safe inside a ``weights_only`` checkpoint."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> RendererConfig:
+        names = {f.name for f in fields(cls)}
+        unknown = set(data) - names
+        if unknown:
+            raise InputError(f"unknown renderer config keys {sorted(unknown)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+    def replace(self, **changes) -> RendererConfig:
+        """A copy with some fields changed (validated)."""
+        return replace(self, **changes)
+
+
+#: Named configurations. ``cpu``: trains in minutes on 2 cores at 128 px. ``paper``: 512 px,
+#: the published sizes (16 x 16 x 512 latent, 64-channel PatchGAN). ``tiny``: for tests.
+PRESETS: dict[str, RendererConfig] = {
+    "cpu": RendererConfig(),
+    "paper": RendererConfig(
+        image_size=512,
+        base_width=32,
+        max_width=512,
+        n_down=5,
+        decoder_features=32,
+        background_width=32,
+        disc_width=64,
+        steps=100000,
+        background_finetune_steps=2000,
+        checkpoint_every=1000,
+        log_every=50,
+        preview_every=1000,
+    ),
+    "tiny": RendererConfig(
+        image_size=32,
+        texture_sizes=(32, 16),
+        texture_channels=4,
+        base_width=8,
+        max_width=16,
+        n_down=2,
+        decoder_features=8,
+        background_width=8,
+        disc_width=8,
+        steps=20,
+        background_finetune_steps=5,
+        checkpoint_every=5,
+        log_every=2,
+        preview_every=10,
+        crop_margin=4,
+    ),
+}
+
+
+def preset(name: str) -> RendererConfig:
+    """The named preset; ``InputError`` listing the names for an unknown one."""
+    if name not in PRESETS:
+        raise InputError(f"unknown renderer preset {name!r}; choose from {sorted(PRESETS)}")
+    return PRESETS[name]

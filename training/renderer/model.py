@@ -1,0 +1,313 @@
+"""The neural renderer's parts: neural texture, encoder, SPADE block, decoder, blend, refinement,
+and the temporal PatchGAN discriminator.
+
+A render is three small swappable steps (STYLE 5): sample the texture at the pixel UVs and
+concatenate the motion features (:meth:`RenderNet.input_features`), encode frames t and t-1
+(:meth:`RenderNet.encode`), then decode and composite over the background
+(:meth:`RenderNet.decode`).
+
+**Decisions.**
+
+- The encoder has no biases and LeakyReLU activations, so an all-zero input (off the proxy) stays
+  exactly zero: a crop around the garment sees the same latent as the full frame except within
+  a few latent cells of the crop's edge (inference crops with a margin).
+- The SPADE block normalises each latent cell over its channels (positional normalisation)
+  instead of batch statistics: the result does not depend on the batch, the crop or the other
+  frames, so batch-1 streaming and batch training agree.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from training.renderer.config import RendererConfig
+
+_SLOPE = 0.2
+
+
+class NeuralTexture(nn.Module):
+    """A multi-scale learned texture: level k is (C, S_k, S_k), sampled bilinearly.
+
+    Parameters
+    ----------
+    sizes : texels per side of each level (512, 256, 128, 64 in the paper)
+    channels : channels per level (16)
+    seed : initial values are drawn from ``N(0, 0.01)`` with this seed
+    """
+
+    def __init__(self, sizes: tuple[int, ...], channels: int, seed: int = 0):
+        super().__init__()
+        g = torch.Generator().manual_seed(seed)
+        self.levels = nn.ParameterList(
+            [nn.Parameter(torch.randn(1, channels, s, s, generator=g) * 0.01) for s in sizes]
+        )
+
+    @property
+    def out_channels(self) -> int:
+        return sum(t.shape[1] for t in self.levels)
+
+    def forward(self, uv: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Sample every level at ``uv``.
+
+        Parameters
+        ----------
+        uv : (B, 2, H, W) float32 in [0, 1] (u right, v up: v = 1 is the texture's top row)
+        mask : (B, 1, H, W) float32, 1 on the proxy; the output is 0 elsewhere
+
+        Returns
+        -------
+        (B, L * C, H, W) float32
+        """
+        b = uv.shape[0]
+        grid = torch.stack([uv[:, 0] * 2 - 1, 1 - uv[:, 1] * 2], -1)  # (B, H, W, 2)
+        out = [
+            F.grid_sample(
+                t.expand(b, -1, -1, -1).to(uv.dtype),
+                grid,
+                mode="bilinear",
+                padding_mode="border",
+                align_corners=False,
+            )
+            for t in self.levels
+        ]
+        return torch.cat(out, 1) * mask
+
+
+def _act() -> nn.Module:
+    return nn.LeakyReLU(_SLOPE)
+
+
+class Encoder(nn.Module):
+    """Input features (B, Cin, H, W) -> latent (B, Cz, H / 2**n, W / 2**n); zero in, zero out."""
+
+    def __init__(self, in_channels: int, base: int, max_width: int, n_down: int):
+        super().__init__()
+        layers: list[nn.Module] = [nn.Conv2d(in_channels, base, 3, 1, 1, bias=False), _act()]
+        w = base
+        for _ in range(n_down):
+            w2 = min(w * 2, max_width)
+            layers += [
+                nn.Conv2d(w, w2, 4, 2, 1, bias=False),
+                _act(),
+                nn.Conv2d(w2, w2, 3, 1, 1, bias=False),
+                _act(),
+            ]
+            w = w2
+        self.net = nn.Sequential(*layers)
+        self.out_channels = w
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+def positional_norm(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
+    """Normalise each pixel over its channels: (B, C, H, W) -> same shape, zero mean, unit var."""
+    mean = x.mean(1, keepdim=True)
+    var = x.var(1, keepdim=True, unbiased=False)
+    return (x - mean) * torch.rsqrt(var + eps)
+
+
+class SPADE(nn.Module):
+    """``norm(x) * (1 + gamma(cond)) + beta(cond)`` with per-cell gamma, beta from a conv."""
+
+    def __init__(self, channels: int, cond_channels: int, hidden: int):
+        super().__init__()
+        self.shared = nn.Sequential(nn.Conv2d(cond_channels, hidden, 3, 1, 1), nn.ReLU())
+        self.gamma = nn.Conv2d(hidden, channels, 3, 1, 1)
+        self.beta = nn.Conv2d(hidden, channels, 3, 1, 1)
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        h = self.shared(cond)
+        return positional_norm(x) * (1 + self.gamma(h)) + self.beta(h)
+
+
+class SPADEResBlock(nn.Module):
+    """SPADE residual block: Z_t normalised and modulated by ``[Z_t, Z_{t-1}]``."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        hidden = min(channels, 128)
+        self.norm1 = SPADE(channels, 2 * channels, hidden)
+        self.conv1 = nn.Conv2d(channels, channels, 3, 1, 1)
+        self.norm2 = SPADE(channels, 2 * channels, hidden)
+        self.conv2 = nn.Conv2d(channels, channels, 3, 1, 1)
+
+    def forward(self, z: torch.Tensor, z_prev: torch.Tensor) -> torch.Tensor:
+        """z, z_prev : (B, C, h, w) -> (B, C, h, w)."""
+        cond = torch.cat([z, z_prev], 1)
+        dx = self.conv1(F.leaky_relu(self.norm1(z, cond), _SLOPE))
+        dx = self.conv2(F.leaky_relu(self.norm2(dx, cond), _SLOPE))
+        return z + dx
+
+
+class Decoder(nn.Module):
+    """Latent (B, Cz, h, w) -> garment features U (B, F, H, W) and mask A (B, 1, H, W) in (0, 1).
+
+    ``ups[-1]``, ``features_head`` and ``mask_head`` are "the last decoder layers" that
+    background fine-tuning trains.
+    """
+
+    def __init__(self, latent: int, base: int, n_down: int, features: int):
+        super().__init__()
+        widths = [min(base * 2**i, latent) for i in range(n_down)][::-1]  # coarse -> fine
+        ups = []
+        w = latent
+        for w2 in widths:
+            ups.append(nn.Sequential(nn.ConvTranspose2d(w, w2, 4, 2, 1), _act()))
+            w = w2
+        self.ups = nn.ModuleList(ups)
+        self.features_head = nn.Conv2d(w, features, 3, 1, 1)
+        self.mask_head = nn.Conv2d(w, 1, 3, 1, 1)
+
+    def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        for up in self.ups:
+            z = up(z)
+        return self.features_head(z), torch.sigmoid(self.mask_head(z))
+
+
+class ResBlock(nn.Module):
+    """Plain residual block: x + conv(act(conv(x)))."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(channels, channels, 3, 1, 1)
+        self.conv2 = nn.Conv2d(channels, channels, 3, 1, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.conv2(F.leaky_relu(self.conv1(x), _SLOPE))
+
+
+class Refiner(nn.Module):
+    """Blended features (B, F, H, W) -> two residual blocks -> RGB (B, 3, H, W) in (0, 1)."""
+
+    def __init__(self, features: int):
+        super().__init__()
+        self.blocks = nn.Sequential(ResBlock(features), ResBlock(features))
+        self.to_rgb = nn.Conv2d(features, 3, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.to_rgb(F.leaky_relu(self.blocks(x), _SLOPE)))
+
+
+class RenderNet(nn.Module):
+    """Neural texture + rendering network (the generator).
+
+    Parameters
+    ----------
+    config : RendererConfig (widths, depth, texture sizes, motion switch)
+    """
+
+    def __init__(self, config: RendererConfig):
+        super().__init__()
+        self.config = config
+        self.texture = NeuralTexture(config.texture_sizes, config.texture_channels, config.seed)
+        self.encoder = Encoder(
+            config.in_channels, config.base_width, config.max_width, config.n_down
+        )
+        cz = self.encoder.out_channels
+        self.spade = SPADEResBlock(cz)
+        self.decoder = Decoder(cz, config.base_width, config.n_down, config.decoder_features)
+        self.background_net = nn.Sequential(
+            nn.Conv2d(3, config.background_width, 3, 1, 1),
+            _act(),
+            nn.Conv2d(config.background_width, config.decoder_features, 3, 1, 1),
+        )
+        self.refiner = Refiner(config.decoder_features)
+
+    @property
+    def stride(self) -> int:
+        return self.config.stride
+
+    def input_features(
+        self, uv: torch.Tensor, motion: torch.Tensor | None, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """Step 1: texture sample (+ motion features): (B, in_channels, H, W), 0 off the proxy.
+
+        uv (B, 2, H, W), motion (B, 95, H, W) or None without motion, mask (B, 1, H, W).
+        """
+        tex = self.texture(uv, mask)
+        if not self.config.use_motion:
+            return tex
+        return torch.cat([tex, motion.to(tex.dtype) * mask], 1)
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        """Step 2: input features (B, Cin, H, W) -> latent (B, Cz, H / s, W / s), s = stride."""
+        return self.encoder(x)
+
+    def decode(
+        self, z: torch.Tensor, z_prev: torch.Tensor, background: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Step 3: latents of t and t-1 and the background (B, 3, H, W) -> (rgb, mask A).
+
+        rgb (B, 3, H, W) in (0, 1); A (B, 1, H, W) the garment mask of the blend.
+        """
+        u, a = self.decoder(self.spade(z, z_prev))
+        bg = self.background_net(background * 2 - 1)
+        return self.refiner((1 - a) * bg + a * u), a
+
+    def forward(
+        self,
+        uv: torch.Tensor,
+        motion: torch.Tensor | None,
+        mask: torch.Tensor,
+        uv_prev: torch.Tensor,
+        motion_prev: torch.Tensor | None,
+        mask_prev: torch.Tensor,
+        background: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Render frame t from its inputs and frame t-1's: (rgb (B, 3, H, W), A (B, 1, H, W))."""
+        b = uv.shape[0]
+        x = self.input_features(
+            torch.cat([uv, uv_prev]),
+            None if motion is None else torch.cat([motion, motion_prev]),
+            torch.cat([mask, mask_prev]),
+        )
+        z = self.encode(x)
+        return self.decode(z[:b], z[b:], background)
+
+
+def background_finetune_parameters(net: RenderNet) -> list[str]:
+    """Names of the parameters background / lighting fine-tuning trains (the rest is frozen):
+    the last decoder up-stage, the decoder heads and the refinement blocks."""
+    prefixes = (
+        f"decoder.ups.{len(net.decoder.ups) - 1}.",
+        "decoder.features_head.",
+        "decoder.mask_head.",
+        "refiner.",
+    )
+    return [n for n, _ in net.named_parameters() if n.startswith(prefixes)]
+
+
+class PatchDiscriminator(nn.Module):
+    """Spectral-norm PatchGAN on pairs of consecutive frames (70 px receptive field).
+
+    Input (B, 6, H, W) in [0, 1] (a later frame's RGB, then the earlier one's); output logits
+    (B, 1, H / 8 - 2, W / 8 - 2) and the four hidden activations for feature matching.
+    """
+
+    def __init__(self, width: int = 64, in_channels: int = 6):
+        super().__init__()
+        sn = nn.utils.parametrizations.spectral_norm
+        w = width
+        spec = [(in_channels, w, 2), (w, 2 * w, 2), (2 * w, 4 * w, 2), (4 * w, 8 * w, 1)]
+        self.layers = nn.ModuleList([sn(nn.Conv2d(i, o, 4, s, 1)) for i, o, s in spec])
+        self.head = sn(nn.Conv2d(8 * w, 1, 4, 1, 1))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        h = x * 2 - 1
+        feats = []
+        for layer in self.layers:
+            h = F.leaky_relu(layer(h), _SLOPE)
+            feats.append(h)
+        return self.head(h), feats
+
+
+def receptive_field(kernels_strides: list[tuple[int, int]]) -> int:
+    """Receptive field (pixels) of a chain of convs given as (kernel, stride)."""
+    rf, jump = 1, 1
+    for k, s in kernels_strides:
+        rf += (k - 1) * jump
+        jump *= s
+    return rf
