@@ -221,10 +221,13 @@ class _Scene:
     """The newton model, solver and states of one simulation (internal)."""
 
     def __init__(self, garment: Mesh, config: SimConfig, capsules, pins, m0: np.ndarray):
-        import newton
         import warp as wp
 
+        # Before newton initialises warp: no banner, and no per-module load lines.
         wp.config.quiet = True
+        wp.config.log_level = wp.LOG_WARNING
+        import newton
+
         self.wp = wp
         self.config = config
         fab = config.material

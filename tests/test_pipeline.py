@@ -1,0 +1,123 @@
+"""The main job end to end: the smoke preset of ``dng demo`` on the built-in assets."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from core.errors import InputError
+from core.project import Project
+from training.pipeline import PRESETS, PipelineConfig, preset, project_config
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory, bvh_dir):
+    from training.demo import run_demo
+
+    out = tmp_path_factory.mktemp("demo")
+    report = run_demo(PRESETS["smoke"], out, preset_name="smoke")
+    return out, report
+
+
+def test_smoke_demo_runs_every_stage_and_reports(smoke):
+    out, report = smoke
+    assert (out / "report.md").is_file() and (out / "report.json").is_file()
+    on_disk = json.loads((out / "report.json").read_text())
+    assert on_disk["command"].startswith("dng demo --preset smoke")
+    assert set(report["simulation"]) == {
+        "dance-proxy",
+        "dance-target",
+        "twirl-proxy",
+        "cmu-01_01-proxy",
+    }
+    for name, sim in report["simulation"].items():
+        assert sim["finite"], name
+        assert sim["penetration_mean_mm"] < 5.0, name
+    proxy = report["proxy"]["proxy"]
+    assert proxy["boundary_loops"] == 2 and proxy["components"] == 1
+    j2c = report["joint2coarse"]
+    assert set(j2c["motions"]) == {"twirl", "cmu-01_01"}
+    for m in j2c["motions"].values():
+        e = m["error_mm"]
+        assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]
+    md = (out / "report.md").read_text()
+    assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
+
+
+def test_rerun_reuses_every_stage(smoke):
+    from training.demo import run_demo
+
+    out, _ = smoke
+    again = run_demo(PRESETS["smoke"], out, preset_name="smoke")
+    assert max(again["stage_seconds"].values()) < 5.0, again["stage_seconds"]
+
+
+def test_dataset_samples_match_the_renderer_contract(smoke):
+    from training.dataset import SAMPLE_KEYS, GarmentDataset
+
+    out, _ = smoke
+    for source in ("sim", "joint2coarse"):
+        data = GarmentDataset(out, source=source)
+        size = PRESETS["smoke"].image_size
+        assert len(data) == len(json.loads((out / "dataset/samples.json").read_text())["samples"])
+        s = data[0]
+        assert set(s) == set(SAMPLE_KEYS)
+        channels = {"uv": 2, "motion": 95, "proxy_mask": 1, "target": 3, "background": 3}
+        for key, c in {**channels, "target_mask": 1}.items():
+            assert tuple(s[key].shape) == (3, c, size, size), key
+            assert np.isfinite(s[key].numpy()).all()
+        assert 0 <= s["target"].min() and s["target"].max() <= 1
+        covered = s["proxy_mask"].numpy() > 0
+        assert covered.any(), "the garment-framed camera sees the proxy"
+        assert (s["uv"].numpy()[:, :, ~covered[0, 0]] == 0).all()
+        # The garment is in the ground truth and absent from the body-only background.
+        garment = s["target_mask"].numpy()[:, 0] > 0.5
+        diff = np.abs(s["target"].numpy() - s["background"].numpy()).sum(1)
+        assert garment.any() and diff[garment].mean() > 0.05
+
+
+def test_cli_commands_on_the_project(smoke, tmp_path, bvh_dir):
+    out, _ = smoke
+    dng = [sys.executable, "-m", "app.cli"]
+    pred = tmp_path / "pred.pc2"
+    r = subprocess.run(
+        dng
+        + [
+            "predict",
+            "proxy",
+            str(out),
+            "--motion",
+            str(bvh_dir / "01_03.bvh"),
+            "--out",
+            str(pred),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    assert pred.stat().st_size > 1000
+    sheet = tmp_path / "sheet.png"
+    r = subprocess.run(
+        dng + ["dataset", str(out), "--sheet", str(sheet)], capture_output=True, text=True
+    )
+    assert r.returncode == 0 and sheet.stat().st_size > 1000, r.stderr
+    r = subprocess.run(
+        dng + ["train", "joint2coarse", str(tmp_path)], capture_output=True, text=True
+    )
+    assert r.returncode == 2 and "not a garment project" in r.stderr
+    assert r.stderr.count("\n") == 1
+
+
+def test_settings_round_trip_and_errors(tmp_path):
+    for name, cfg in PRESETS.items():
+        assert PipelineConfig.from_params(json.loads(json.dumps(cfg.as_params()))) == cfg, name
+    with pytest.raises(InputError, match="unknown preset"):
+        preset("huge")
+    proj = Project(tmp_path)
+    proj.save_settings({"pipeline": {"garment": "x"}})
+    with pytest.raises(InputError, match="project.json: malformed pipeline settings"):
+        project_config(proj)
