@@ -177,11 +177,27 @@ def report_markdown(report: dict) -> str:
             f"{e['max_mm']:.1f} |"
         )
     for name, m in j["motions"].items():
-        e = m["error_mm"]
+        for label, r in (("", m), (", pushed out of the body", m["with_push_out"])):
+            e = r["error_mm"]
+            lines.append(
+                f"| unseen `{name}` ({m['frames']} frames){label} | {e['mean_mm']:.1f} | "
+                f"{e['p95_mm']:.1f} | {e['max_mm']:.1f} |"
+            )
+    lines += [
+        "",
+        "| unseen motion | penetration mean / max (mm) | penetrating vertices | with push-out | "
+        "batch inference (ms/frame) |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for name, m in j["motions"].items():
+        p, q = m["penetration_mm"], m["with_push_out"]["penetration_mm"]
         lines.append(
-            f"| unseen `{name}` ({m['frames']} frames) | {e['mean_mm']:.1f} | {e['p95_mm']:.1f} "
-            f"| {e['max_mm']:.1f} |"
+            f"| `{name}` | {p['mean']:.2f} / {p['max']:.1f} | {p['fraction']:.1%} | "
+            f"{q['mean']:.2f} / {q['max']:.1f} ({q['fraction']:.1%}) | "
+            f"{m['batch_ms_per_frame']:.3f} |"
         )
+    lines += ["", "Side by side (simulation above, prediction below):", ""]
+    lines += [f"![{name}](joint2coarse/compare-{name}.png)" for name in j["motions"]]
     lines += [
         "",
         f"Total: {report['total_seconds'] / 60:.1f} min. Configuration: `report.json` (`config`).",

@@ -465,7 +465,7 @@ def stage_joint2coarse(
             report["motions"][name] = _evaluate_joint2coarse(
                 project, config, result.net, name, load_cache(cache_path), out
             )
-            outputs.append(f"pred-{name}.npz")
+            outputs += [f"pred-{name}.npz", f"compare-{name}.png"]
             e = report["motions"][name]["error_mm"]
             log(f"  {name}: mean {e['mean_mm']:.1f} mm, p95 {e['p95_mm']:.1f} mm (unseen motion)")
         write_json(out / "report.json", report)
@@ -478,7 +478,8 @@ def stage_joint2coarse(
 
 
 def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> dict:
-    """Predict a test motion, compare with its simulation, time the inference."""
+    """Predict a test motion; compare with its simulation, with and without the optional
+    push-out against the body; time the inference; write a side-by-side picture."""
     from core.body.colliders import posed_capsules_for
     from core.body.mannequin import make_body
     from core.sim.simulate import penetration_depths
@@ -489,21 +490,51 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
     start = time.perf_counter()
     pred = predict_proxy(net, joints, root_rot)
     ms = 1e3 * (time.perf_counter() - start) / len(pred)
-    write_npz(out / f"pred-{name}.npz", positions=pred)
     body = make_body(config.body)
     capsules = posed_capsules_for(body, motion)
-    depth = penetration_depths(pred, capsules, body.capsules.radii)
+    pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=body.capsules.radii)
+    write_npz(out / f"pred-{name}.npz", positions=pred)
+
+    def measured(positions: np.ndarray) -> dict:
+        depth = penetration_depths(positions, capsules, body.capsules.radii)
+        return {
+            "error_mm": asdict(vertex_errors(positions, reference.positions)),
+            "penetration_mm": {
+                "mean": float(depth.mean() * 1e3),
+                "max": float(depth.max() * 1e3),
+                "fraction": float((depth > 0).mean()),
+            },
+        }
+
+    _side_by_side(out / f"compare-{name}.png", reference, pred, body, motion)
     return {
         "frames": int(len(pred)),
-        "error_mm": asdict(vertex_errors(pred, reference.positions)),
-        "penetration_mm": {
-            "mean": float(depth.mean() * 1e3),
-            "max": float(depth.max() * 1e3),
-            "fraction": float((depth > 0).mean()),
-        },
+        **measured(pred),
+        "with_push_out": measured(pushed),
         "batch_ms_per_frame": ms,
-        "command": "dng demo (stage joint2coarse)",
     }
+
+
+def _side_by_side(path: Path, reference, predicted: np.ndarray, body, motion) -> None:
+    """Simulated proxy above, Joint2Coarse's prediction below, at five frames of the clip."""
+    from core.body.skinning import pose_body
+    from core.camera import make_camera
+    from core.mesh import Mesh
+    from core.shading import contact_sheet, render_views, write_png
+
+    frames = np.linspace(0, len(predicted) - 1, 5).round().astype(int)
+    posed = pose_body(body, motion)
+    tiles, labels = [], []
+    for label, cache in (("simulation", reference.positions), ("Joint2Coarse", predicted)):
+        for f in frames:
+            centre = motion.root_positions[f].astype(np.float64)
+            eye = centre + np.array([0.0, 0.1, 2.6])
+            cam = make_camera(eye, centre + np.array([0.0, -0.2, 0.0]), width=192, height=192)
+            garment = Mesh(np.asarray(cache[f], np.float32), reference.faces)
+            (gt,) = render_views(garment, Mesh(posed[f], body.faces), [cam])
+            tiles.append(gt.image)
+            labels.append(f"{label} f{f}")
+    write_png(path, contact_sheet(tiles, labels, columns=len(frames)))
 
 
 # ---------------------------------------------------------------------------------- data set
