@@ -15,7 +15,6 @@ config continues from the last checkpoint and ends with the same weights as an u
 from __future__ import annotations
 
 import contextlib
-import csv
 import hashlib
 import os
 from collections.abc import Callable, Sequence
@@ -28,6 +27,7 @@ from tqdm.auto import tqdm
 
 from core.errors import InputError
 from core.fileio import atomic_path
+from training.csvlog import append_rows, truncate_rows
 from training.joint2coarse.config import Joint2CoarseConfig
 from training.joint2coarse.descriptor import check_joint_inputs, motion_descriptors, to_root_frame
 from training.joint2coarse.metrics import VertexErrors
@@ -308,28 +308,12 @@ class _Trainer:
         return train, (float(val_mm) if val_mm else None)
 
     def flush_log(self) -> None:
-        if not self.pending_rows:
-            return
-        new = not self.log_path.is_file()
-        with open(self.log_path, "a", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            if new:
-                w.writerow(LOG_COLUMNS)
-            w.writerows(self.pending_rows)
+        append_rows(self.log_path, LOG_COLUMNS, self.pending_rows)
         self.pending_rows = []
 
     def truncate_log(self) -> None:
         """Drop log rows written after the checkpoint a resumed run starts from."""
-        if not self.log_path.is_file():
-            return
-        with open(self.log_path, newline="", encoding="utf-8") as f:
-            rows = list(csv.reader(f))
-        keep = [r for r in rows[1:] if len(r) == len(LOG_COLUMNS) and r[0].isdigit()]
-        keep = [r for r in keep if int(r[0]) <= self.step]
-        with atomic_path(self.log_path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(LOG_COLUMNS)
-            w.writerows(keep)
+        truncate_rows(self.log_path, LOG_COLUMNS, self.step)
 
     def save_checkpoint(self) -> None:
         self.flush_log()

@@ -21,7 +21,6 @@ nccl on CUDA) and only rank 0 writes files.
 from __future__ import annotations
 
 import contextlib
-import csv
 import hashlib
 import math
 import os
@@ -39,6 +38,7 @@ from tqdm.auto import tqdm
 from core.errors import InputError
 from core.fileio import atomic_path
 from core.shading import contact_sheet, write_png
+from training.csvlog import append_rows, truncate_rows
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
@@ -348,29 +348,14 @@ class _Trainer:
         return means
 
     def flush_log(self) -> None:
-        if self.rank != 0 or not self.pending_rows:
-            self.pending_rows = []
-            return
-        new = not self.log_path.is_file()
-        with open(self.log_path, "a", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            if new:
-                w.writerow(LOG_COLUMNS)
-            w.writerows(self.pending_rows)
+        if self.rank == 0:
+            append_rows(self.log_path, LOG_COLUMNS, self.pending_rows)
         self.pending_rows = []
 
     def truncate_log(self) -> None:
         """Drop log rows written after the checkpoint a resumed run starts from."""
-        if self.rank != 0 or not self.log_path.is_file():
-            return
-        with open(self.log_path, newline="", encoding="utf-8") as f:
-            rows = list(csv.reader(f))
-        keep = [r for r in rows[1:] if len(r) == len(LOG_COLUMNS) and r[0].isdigit()]
-        keep = [r for r in keep if int(r[0]) <= self.step]
-        with atomic_path(self.log_path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(LOG_COLUMNS)
-            w.writerows(keep)
+        if self.rank == 0:
+            truncate_rows(self.log_path, LOG_COLUMNS, self.step)
 
     def preview(self) -> None:
         if self.rank != 0:
