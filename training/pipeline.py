@@ -361,7 +361,14 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     proxy_file = project.path("proxy", "positions.obj")
     proxy_cache = project.path(f"sim/{motion_name}-proxy", "cache.npz")
     stage = f"sim/{motion_name}-target"
-    params = {"mode": "embed", "body": asdict(config.body)}
+    from core.sim.embed import DEFAULT_NEIGHBOURS
+
+    params = {
+        "mode": "embed",
+        "method": "skinned-to-proxy-frames",
+        "neighbours": DEFAULT_NEIGHBOURS,
+        "body": asdict(config.body),
+    }
 
     def work(out: Path) -> list[str]:
         target, _ = load_mesh(target_file)
