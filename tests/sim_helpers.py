@@ -51,3 +51,36 @@ def two_layer_skirt(around: int = 24, rings: int = 10) -> Mesh:
     v[:, [0, 2]] *= (r + 0.015) / r
     faces = np.concatenate([inner.faces, outer.faces + inner.num_vertices])
     return Mesh(np.concatenate([inner.vertices, v]).astype(np.float32), faces)
+
+
+def frilled_skirt(around: int = 24, rings: int = 10, gap: float = 0.002) -> tuple[Mesh, np.ndarray]:
+    """Two stacked frustum skirts pinned at one waist ``gap`` apart (closer than the cloth-cloth
+    contact thickness: their pinned waistbands touch), and a loose frill ring (its own piece,
+    pinned nowhere) over the outer layer's hem, its top 1.5 cm above the hem, 4 mm outside the
+    hem's radius (wider than the hem: unsewn, it slides off).
+
+    Returns the mesh and each vertex's piece: 0 inner, 1 outer, 2 frill.
+    """
+    h = 1.70
+    y_bot, r_bot = 0.36 * h, 0.30  # frustum_skirt's hem
+    inner = frustum_skirt(around, rings)
+    v = inner.vertices.copy()
+    r = np.linalg.norm(v[:, [0, 2]], axis=1, keepdims=True)
+    v[:, [0, 2]] *= (r + gap) / r
+    frill_rings, frill_around = 4, 2 * around
+    fv = []
+    for j in range(frill_rings):
+        y = y_bot + 0.015 - 0.065 * j / (frill_rings - 1)
+        rad = r_bot + gap + 0.004 + 0.01 * j / (frill_rings - 1)  # wider than the hem: slides off
+        a = 2 * np.pi * np.arange(frill_around) / frill_around
+        fv.append(np.stack([rad * np.sin(a), np.full(frill_around, y), rad * np.cos(a)], axis=1))
+    ff = []
+    for j in range(frill_rings - 1):
+        for i in range(frill_around):
+            a, b = j * frill_around + i, j * frill_around + (i + 1) % frill_around
+            ff += [(a, a + frill_around, b), (b, a + frill_around, b + frill_around)]
+    n = inner.num_vertices
+    verts = np.concatenate([inner.vertices, v, np.concatenate(fv)]).astype(np.float32)
+    faces = np.concatenate([inner.faces, inner.faces + n, np.array(ff, np.int64) + 2 * n])
+    piece = np.repeat([0, 1, 2], [n, n, frill_rings * frill_around])
+    return Mesh(verts, faces), piece

@@ -16,3 +16,65 @@ def set_pinned(
     i = wp.tid()
     q[indices[i]] = targets[i]
     qd[indices[i]] = wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.kernel
+def contact_stiffness(
+    static_diags: wp.array(dtype=wp.float32),
+    floor: float,
+    out: wp.array(dtype=wp.float32),
+):
+    """Per-particle weights of Style3D's cloth-cloth contacts: the solver's static diagonal, at
+    least ``floor`` (it is 0 for kinematic particles, and a contact among those alone would be
+    weighed 0 / 0)."""
+    i = wp.tid()
+    out[i] = wp.max(static_diags[i], floor)
+
+
+@wp.kernel
+def accumulate_normals(
+    faces: wp.array(dtype=wp.vec3i),
+    ahead: float,
+    q: wp.array(dtype=wp.vec3),
+    qd: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+):
+    """Area-weighted vertex normals (unnormalised) of the positions ``ahead`` seconds on."""
+    f = faces[wp.tid()]
+    a = q[f[0]] + ahead * qd[f[0]]
+    n = wp.cross(q[f[1]] + ahead * qd[f[1]] - a, q[f[2]] + ahead * qd[f[2]] - a)
+    wp.atomic_add(normals, f[0], n)
+    wp.atomic_add(normals, f[1], n)
+    wp.atomic_add(normals, f[2], n)
+
+
+@wp.kernel
+def set_sewn(
+    indices: wp.array(dtype=wp.int32),
+    hosts: wp.array(dtype=wp.vec3i),
+    barycentric: wp.array(dtype=wp.vec3),
+    normal_offset: wp.array(dtype=wp.float32),
+    residual: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    ahead: float,
+    q: wp.array(dtype=wp.vec3),
+    qd: wp.array(dtype=wp.vec3),
+):
+    """Move sewn particles to their host triangles (closest point, the offset along the
+    interpolated vertex normal, the residual in the triangle's frame), with the velocity of that
+    point; ``ahead`` seconds ahead, the host vertices moved on at their velocities (where they
+    will be at the end of a step). ``normals`` from :func:`accumulate_normals` (same ahead)."""
+    i = wp.tid()
+    h = hosts[i]
+    w = barycentric[i]
+    a = q[h[0]] + ahead * qd[h[0]]
+    b = q[h[1]] + ahead * qd[h[1]]
+    c = q[h[2]] + ahead * qd[h[2]]
+    e1 = wp.normalize(b - a)
+    n = wp.normalize(wp.cross(b - a, c - a))
+    e2 = wp.cross(n, e1)
+    m = wp.normalize(w[0] * normals[h[0]] + w[1] * normals[h[1]] + w[2] * normals[h[2]])
+    r = residual[i]
+    x = w[0] * a + w[1] * b + w[2] * c + normal_offset[i] * m
+    q[indices[i]] = x + r[0] * e1 + r[1] * e2 + r[2] * n
+    qd[indices[i]] = w[0] * qd[h[0]] + w[1] * qd[h[1]] + w[2] * qd[h[2]]

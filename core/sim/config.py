@@ -93,6 +93,11 @@ class SimConfig:
     through the skirt instead."""
     collision_margin: float = 0.004
     """Thickness kept between cloth and body (metres): the particle radius in contacts."""
+    self_contact_thickness: float = 0.003
+    """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
+    It must stay below the gaps a layered garment is built with (the built-in templates stack
+    their parts 4 mm apart): parts closer than this start in contact and are shoved apart from
+    the first step, and where one of them is pinned or sewn (kinematic) the push never ends."""
     contact_gap: float = 0.01
     """Extra distance (metres) at which body contacts are detected ahead of touching, so a fast
     limb is seen before it passes through the cloth within one step."""
@@ -121,6 +126,7 @@ class SimConfig:
             "settle_s": self.settle_s >= 0,
             "pin_distance": self.pin_distance >= 0,
             "collision_margin": self.collision_margin > 0,
+            "self_contact_thickness": self.self_contact_thickness > 0,
             "contact_ke": self.contact_ke > 0,
             "contact_gap": self.contact_gap >= 0,
             "max_retries": self.max_retries >= 0,

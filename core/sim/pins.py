@@ -5,6 +5,11 @@ within ``pin_distance`` of the garment's top boundary loop(s) are pinned. Each c
 pinned band follows one torso bone rigidly (the bone nearest to most of its vertices in the
 rest pose), so the band moves exactly with the body every substep: kinematic particles (zero
 inverse mass), which is stable at any step size, unlike stiff springs.
+
+Pieces that no pin holds (a frill sewn at a tier's hem, a dress's sash and bow: separate
+components whose top loop is not at the waist) are sewn to the part beside them
+(:func:`find_seams`): their top loop's closest vertices follow points of that part's cloth,
+kinematic too, every step.
 """
 
 from __future__ import annotations
@@ -156,3 +161,169 @@ def _pinned_components(num_vertices: int, faces: np.ndarray, idx: np.ndarray) ->
     n = len(idx)
     adj = coo_matrix((np.ones(len(e)), (local[e[:, 0]], local[e[:, 1]])), shape=(n, n))
     return connected_components(adj, directed=False)[1]
+
+
+#: A loose piece is sewn to another part only where that part is within this many
+#: ``pin_distance`` of its top loop (a frill overlaps its tier's hem by a centimetre or two).
+SEW_REACH = 2.0
+#: A loose piece's top-loop vertices within this distance (metres) of its closest one to the
+#: host are its stitches.
+SEAM_BAND = 0.008
+
+
+@dataclass(frozen=True)
+class Seams:
+    """Vertices of loose pieces (parts that no pin holds: a frill sewn at a tier's hem, a sash, a
+    bow) sewn to the cloth of another part: each follows a point of a host triangle, kept at its
+    rest offset along the triangle's normal (exact at rest and under rigid motion).
+
+    Attributes
+    ----------
+    indices : (A,) int64, the sewn vertices, ascending
+    hosts : (A, 3) int64, vertices of each one's host triangle (another part)
+    barycentric : (A, 3) float32, of the closest point on the host triangle
+    normal_offset : (A,) float32, distance from that point along the host's interpolated
+        vertex normal there (metres): smooth across the host's triangles, so neighbouring
+        sewn vertices keep their spacing when the host bends
+    residual : (A, 3) float32, the rest of the offset in the triangle's frame (edge 0->1,
+        normal x edge, normal), metres
+    pieces : int, how many loose pieces were sewn
+    loose : int, loose pieces with no part within reach (left free)
+    """
+
+    indices: np.ndarray
+    hosts: np.ndarray
+    barycentric: np.ndarray
+    normal_offset: np.ndarray
+    residual: np.ndarray
+    pieces: int = 0
+    loose: int = 0
+
+    def targets(self, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        """Positions of the sewn vertices for garment positions (V, 3) and the garment's
+        faces: (A, 3) float32."""
+        from core.sim.embed import vertex_normals
+
+        x = np.asarray(positions, np.float64)
+        tri = x[self.hosts]
+        w = self.barycentric.astype(np.float64)
+        n = np.einsum("ai,aij->aj", w, vertex_normals(x, faces)[self.hosts])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        p = np.einsum("ai,aij->aj", w, tri) + self.normal_offset[:, None] * n
+        rest = np.einsum("ak,akj->aj", self.residual.astype(np.float64), triangle_frames(tri))
+        return (p + rest).astype(np.float32)
+
+
+def triangle_frames(tri: np.ndarray) -> np.ndarray:
+    """Orthonormal frames of triangles (N, 3, 3): rows e1 (edge 0->1), n x e1, n: (N, 3, 3)."""
+    e1 = tri[:, 1] - tri[:, 0]
+    n = np.cross(e1, tri[:, 2] - tri[:, 0])
+    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-12)
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    return np.stack([e1, np.cross(n, e1), n], axis=1)
+
+
+def _components(num_vertices: int, faces: np.ndarray) -> np.ndarray:
+    """Connected-component label of every vertex (isolated vertices get their own)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.asarray(faces, np.int64)[:, [0, 1, 1, 2]].reshape(-1, 2)
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num_vertices,) * 2)
+    return connected_components(adj, directed=False)[1]
+
+
+def find_seams(
+    vertices: np.ndarray, faces: np.ndarray, pinned: np.ndarray, pin_distance: float
+) -> Seams:
+    """Sew every loose piece (a connected part with no pinned vertex) to the part beside it.
+
+    A piece whose top boundary loop is not among the garment's top loops (a frill at a tier's
+    hem, a sash at the waist of a dress) is not pinned by :func:`find_pins`; left free it falls
+    off the body. Its top boundary loop (or, for a closed piece, its vertices within
+    ``pin_distance`` of its top) is sewn, where it lies closest, to the nearest triangles of an
+    anchored part within ``SEW_REACH * pin_distance``. Anchored: pinned, or sewn in an earlier
+    round (a bow to the sash that is sewn to the dress); host triangles touch no sewn vertex,
+    so every seam hangs on free or pinned cloth, never on another seam (no cycles, no seam
+    placed from a stale one). A piece with nothing within reach stays loose.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, rest positions
+    faces : (F, 3) int
+    pinned : (P,) int, indices of pinned vertices (:attr:`Pins.indices`)
+    pin_distance : metres (see :class:`core.sim.config.SimConfig`)
+    """
+    from core.proxy.metrics import barycentric, point_to_mesh
+    from core.sim.embed import vertex_normals
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    label = _components(len(v), f)
+    face_label = label[f[:, 0]]
+    anchored = np.zeros(label.max() + 1, bool)
+    anchored[label[np.asarray(pinned, np.int64)]] = True
+    loops = boundary_loops(f)
+    normals = vertex_normals(v, f)
+    sewn = np.zeros(len(v), bool)
+    tops = {}
+    for c in np.unique(face_label):
+        if anchored[c]:
+            continue
+        own = [lp for lp in loops if label[lp[0]] == c]
+        if own:
+            tops[c] = own[int(np.argmax([v[lp, 1].mean() for lp in own]))]
+        else:
+            members = np.flatnonzero(label == c)
+            tops[c] = members[v[members, 1] >= v[members, 1].max() - pin_distance]
+    idx, hosts, bary, offset, residual = [], [], [], [], []
+    while tops:
+        usable = anchored[face_label] & ~sewn[f].any(axis=1)
+        if not usable.any():
+            break
+        others = f[usable]
+        found = {}
+        for c, top in tops.items():
+            dist, face, closest = point_to_mesh(v[top], v, others)
+            if dist.min() <= SEW_REACH * pin_distance:
+                found[c] = (top, dist, face, closest)
+        if not found:
+            break
+        for c, (top, dist, face, closest) in found.items():
+            del tops[c]
+            anchored[c] = True
+            # The stitches: where the loop lies closest to the host (a gathered frill's inner
+            # folds); its far points (outer folds, centimetres off) would swing about the
+            # host's normals on a coarse mesh and tear the seam.
+            near = dist <= dist.min() + SEAM_BAND
+            top, tri = top[near], others[face[near]]
+            w = barycentric(closest[near], v[tri])
+            n = np.einsum("ai,aij->aj", w, normals[tri])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            delta = v[top] - closest[near]
+            d = (delta * n).sum(1)
+            idx.append(top)
+            hosts.append(tri)
+            bary.append(w)
+            offset.append(d)
+            residual.append(
+                np.einsum("akj,aj->ak", triangle_frames(v[tri]), delta - d[:, None] * n)
+            )
+        for top in idx[-len(found) :]:
+            sewn[top] = True
+    loose = len(tops)
+    if not idx:
+        z3 = np.zeros((0, 3), np.float32)
+        return Seams(np.zeros(0, np.int64), np.zeros((0, 3), np.int64), z3, z3[:, 0], z3, 0, loose)
+    pieces = len(idx)
+    idx = np.concatenate(idx)
+    order = np.argsort(idx)
+    return Seams(
+        idx[order],
+        np.concatenate(hosts)[order],
+        np.concatenate(bary)[order].astype(np.float32),
+        np.concatenate(offset)[order].astype(np.float32),
+        np.concatenate(residual)[order].astype(np.float32),
+        pieces,
+        loose,
+    )

@@ -3,7 +3,8 @@
 Scene: the garment mesh as cloth (membrane + dihedral bending, the fabric preset's density and
 stiffness), gravity along -Y, the body as kinematic capsules
 (:mod:`core.sim.colliders`) posed every solver step, the waistband/neckline pinned to the
-torso bones (:mod:`core.sim.pins`). Solver: newton's Style3D (implicit projective dynamics
+torso bones and loose pieces (frills, a sash, a bow) sewn to the part they lie on
+(:mod:`core.sim.pins`). Solver: newton's Style3D (implicit projective dynamics
 with a PCG global step) by default: stable at the few large steps a CPU can afford, and its
 global step holds the fabric's stretch to a fraction of a percent in a few iterations. VBD
 (vertex block descent) is the alternative; on the 1.9k long skirt it needed 16 iterations to
@@ -43,10 +44,14 @@ from core.sim.colliders import (
 )
 from core.sim.config import SimConfig
 from core.sim.drive import BodyDrive, body_drive
-from core.sim.pins import find_pins
+from core.sim.pins import Seams, find_pins, find_seams
 
 #: Chest height as a fraction of the body height (where the mannequin's chest girth is).
 CHEST_LEVEL = 0.72
+#: Weight of a kinematic particle in Style3D's cloth-cloth contacts (its solver row is 0; a free
+#: particle's holds its stretch stiffness and mass / dt^2, orders of magnitude more): small
+#: enough to leave those contacts without force, but not 0.
+KINEMATIC_CONTACT_WEIGHT = 1.0e-6
 
 
 class SimulationError(InputError):
@@ -220,7 +225,9 @@ def _interp_transforms(ma: np.ndarray, mb: np.ndarray, w: float) -> np.ndarray:
 class _Scene:
     """The newton model, solver and states of one simulation (internal)."""
 
-    def __init__(self, garment: Mesh, config: SimConfig, capsules, pins, m0: np.ndarray):
+    def __init__(
+        self, garment: Mesh, config: SimConfig, capsules, pins, seams: Seams, m0: np.ndarray
+    ):
         import warp as wp
 
         # Before newton initialises warp: no banner, and no per-module load lines.
@@ -270,7 +277,8 @@ class _Scene:
                 edge_kd=fab.bend_kd,
                 particle_radius=config.collision_margin,
             )
-        for i in pins.indices:
+        # Kinematic particles (pinned, sewn): zero mass, newton then leaves them out of the solve.
+        for i in np.concatenate([pins.indices, seams.indices]):
             b.particle_mass[self.first_particle + int(i)] = 0.0
         if config.solver == "vbd":
             b.color(include_bending=True)
@@ -285,9 +293,12 @@ class _Scene:
                     config=newton.solvers.SolverStyle3D.Config(iterations=config.iterations),
                 )
             col = self.solver.collision
-            col.radius = config.collision_margin
+            # Style3D keeps twice this radius between cloth pieces (its "thickness").
+            col.radius = 0.5 * config.self_contact_thickness
             if not config.self_collision:  # body contacts stay; cloth-cloth terms off
                 col.stiff_vf = col.stiff_ee = col.stiff_ef = 0.0
+            else:
+                self._guard_pinned_contacts()
         else:
             kwargs = {}
             if self.device.is_cuda:
@@ -316,7 +327,53 @@ class _Scene:
             device=self.device,
         )
         self.pins = pins
+        self.seams = seams
+        first, dev = self.first_particle, self.device
+        self.sewn = (
+            wp.array((seams.indices + first).astype(np.int32), dtype=wp.int32, device=dev),
+            wp.array((seams.hosts + first).astype(np.int32), dtype=wp.vec3i, device=dev),
+            wp.array(seams.barycentric, dtype=wp.vec3, device=dev),
+            wp.array(seams.normal_offset, dtype=wp.float32, device=dev),
+            wp.array(seams.residual, dtype=wp.vec3, device=dev),
+        )
+        self.faces = wp.array((garment.faces + first).astype(np.int32), dtype=wp.vec3i, device=dev)
+        self.normals = wp.zeros(self.model.particle_count, dtype=wp.vec3, device=dev)
         self.n = garment.num_vertices
+
+    def _guard_pinned_contacts(self) -> None:
+        """Make Style3D's cloth-cloth contacts among kinematic particles finite (and nil).
+
+        Style3D weighs a vertex-face (or edge-edge) contact by the harmonic mean ``a * b / (a +
+        b)`` of the particles' rows of the system diagonal, and that row is 0 for a kinematic
+        (zero-mass: pinned or sewn) particle. A contact whose every particle is kinematic is
+        weighed 0 / 0: a NaN force that the global PCG solve spreads to every particle in the
+        first step. Stacked parts pinned at one waist (a layered skirt's tiers and waistband,
+        4 mm apart, within the contact thickness) do exactly that. Here the weights get a tiny
+        floor: such contacts weigh ~0 instead of NaN, and a contact of a kinematic particle with
+        free cloth stays as newton makes it (~0: kinematic cloth does not push cloth; a sewn
+        seam pushing the very part it follows would push itself away without end).
+        """
+        from core.sim._kernels import contact_stiffness
+
+        wp, dev, solver = self.wp, self.device, self.solver
+        col = solver.collision
+        safe = wp.zeros(self.model.particle_count, dtype=wp.float32, device=dev)
+        accumulate = col.accumulate_contact_force
+
+        def accumulate_contact_force(dt, _iter, state_in, state_out, contacts, forces, q_prev,
+                                     particle_stiff=None):  # fmt: skip
+            if particle_stiff is not None:
+                wp.launch(
+                    contact_stiffness,
+                    dim=safe.shape[0],
+                    inputs=[particle_stiff, KINEMATIC_CONTACT_WEIGHT],
+                    outputs=[safe],
+                    device=dev,
+                )
+                particle_stiff = safe
+            accumulate(dt, _iter, state_in, state_out, contacts, forces, q_prev, particle_stiff)
+
+        col.accumulate_contact_force = accumulate_contact_force
 
     def _add_style3d_cloth(self, b, garment: Mesh, fab) -> None:
         """Style3D cloth: rest shape from per-triangle flat panels (each triangle laid out in
@@ -392,10 +449,35 @@ class _Scene:
                 inputs=[self.pin_idx, targets, self.s0.particle_q, self.s0.particle_qd],
                 device=dev,
             )
+        # Sewn particles are kinematic too: placed where their hosts will be at the end of the
+        # step (moved on at their velocities; left where the hosts are, they would drag one step
+        # behind, stretching the seam by the host's speed times dt), then put back exactly.
+        self._sew(dt)
         self.s0.clear_forces()
         self.pipeline.collide(self.s0, self.contacts)
         self.solver.step(self.s0, self.s1, self.control, self.contacts, dt)
         self.s0, self.s1 = self.s1, self.s0
+        self._sew(0.0)
+
+    def _sew(self, ahead: float) -> None:
+        from core.sim._kernels import accumulate_normals, set_sewn
+
+        if not len(self.seams.indices):
+            return
+        wp, q, qd = self.wp, self.s0.particle_q, self.s0.particle_qd
+        self.normals.zero_()
+        wp.launch(
+            accumulate_normals,
+            dim=self.faces.shape[0],
+            inputs=[self.faces, ahead, q, qd, self.normals],
+            device=self.device,
+        )
+        wp.launch(
+            set_sewn,
+            dim=len(self.seams.indices),
+            inputs=[*self.sewn, self.normals, ahead, q, qd],
+            device=self.device,
+        )
 
     def positions(self) -> np.ndarray:
         q = self.s0.particle_q.numpy()
@@ -478,6 +560,14 @@ def simulate(
     pins = find_pins(
         garment.vertices, garment.faces, skeleton, config.pin_distance, shape.height, path
     )
+    seams = find_seams(garment.vertices, garment.faces, pins.indices, config.pin_distance)
+    if seams.pieces:
+        notes.append(
+            f"{seams.pieces} loose piece(s) (no pinned vertex) sewn by {len(seams.indices)} "
+            "vertices to the parts beside them"
+        )
+    if seams.loose:
+        notes.append(f"{seams.loose} loose piece(s) with no part within reach: left free")
     edges = unique_edges(garment.faces)
     rest_len = np.linalg.norm(
         garment.vertices[edges[:, 1]].astype(np.float64) - garment.vertices[edges[:, 0]], axis=1
@@ -494,7 +584,7 @@ def simulate(
         notes.append(
             f"self-collision {'on: the garment has several pieces' if layered else 'off: one surface'}"
         )
-    scene = _Scene(garment, config, capsules, pins, drive.transforms[0])
+    scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0])
     fab = config.material
     strain_blowup = config.blowup_strain * fab.max_strain
 
@@ -582,6 +672,7 @@ def simulate(
         "steps_per_frame": n,
         "pinned_vertices": int(len(pins.indices)),
         "pinned_indices": pins.indices.tolist(),
+        "sewn_vertices": int(len(seams.indices)),
         "colliders": list(capsules.names),
         "solver": "newton.SolverVBD",
         "newton_version": _newton_version(),
