@@ -49,7 +49,7 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs: Any) -> Iter
 def write_json(path: str | os.PathLike, data: Any) -> None:
     """Write ``data`` as indented JSON, atomically. numpy scalars and arrays are converted."""
     with atomic_open(path, "w", encoding="utf-8") as f:
-        json.dump(data, f, indent=2, default=_json_default)
+        json.dump(data, f, indent=2, default=json_default)
         f.write("\n")
 
 
@@ -65,7 +65,8 @@ def _umask() -> int:
     return mask
 
 
-def _json_default(obj: Any) -> Any:
+def json_default(obj: Any) -> Any:
+    """``json.dump``'s ``default``: numpy scalars and arrays, and paths, as plain JSON."""
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):

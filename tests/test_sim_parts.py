@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from core.body.colliders import capsule_distance
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.errors import InputError
-from core.sim.colliders import body_capsules, capsule_signed_distance, pose_capsules
+from core.sim.colliders import body_capsules, pose_capsules
 from core.sim.config import FABRICS, SimConfig
 from core.sim.drive import body_drive
 from core.sim.pins import boundary_loops, find_pins
@@ -36,7 +37,7 @@ def test_capsule_distance_matches_brute_force(rng):
     ends = rng.standard_normal((5, 2, 3))
     radii = rng.uniform(0.05, 0.3, 5)
     pts = rng.standard_normal((200, 3))
-    got = capsule_signed_distance(pts, ends, radii)
+    got = capsule_distance(pts, ends, radii)
     # Brute force: sample each segment densely.
     s = np.linspace(0, 1, 2001)
     segs = ends[:, 0, None] + s[None, :, None] * (ends[:, 1] - ends[:, 0])[:, None]  # (K, S, 3)
@@ -50,7 +51,7 @@ def test_capsules_cover_the_hips_and_follow_the_bones():
     caps = body_capsules(sk, shape)
     rest = sk.rest_positions()
     # Hip joints and spine joints are inside the body.
-    inside = capsule_signed_distance(rest[[0, 1, 2, 3]], caps.endpoints, caps.radii)
+    inside = capsule_distance(rest[[0, 1, 2, 3]], caps.endpoints, caps.radii)
     assert (inside < -0.05).all()
     # The hip girth at hip height is about the requested one (stadium sections).
     k = [i for i, n in enumerate(caps.names) if n.startswith("torso-0.495")]

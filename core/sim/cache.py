@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import InputError
-from core.fileio import atomic_open
+from core.fileio import atomic_open, json_default
 
 CACHE_SUFFIXES = (".npz", ".pc2", ".mdd")
 _PC2_MAGIC = b"POINTCACHE2\0"
@@ -111,7 +111,7 @@ def save_cache(path: str | os.PathLike, cache: SimCache) -> None:
         positions=cache.positions,
         faces=cache.faces,
         fps=np.float64(cache.fps),
-        params=np.array(json.dumps(cache.params, default=_json_default)),
+        params=np.array(json.dumps(cache.params, default=json_default)),
     )
     with atomic_open(path, "wb") as f:
         f.write(buf.getvalue())
@@ -360,13 +360,3 @@ def _check_faces(faces: np.ndarray, num_vertices: int, path) -> None:
             f"holds {num_vertices} points",
             path,
         )
-
-
-def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")

@@ -155,27 +155,3 @@ def pose_capsules(capsules: BodyCapsules, transforms: np.ndarray) -> np.ndarray:
     e = capsules.endpoints.astype(np.float64)
     out = np.einsum("skab,kcb->skca", m[..., :3, :3], e) + m[:, :, None, :3, 3]
     return out.astype(np.float32)
-
-
-def capsule_signed_distance(
-    points: np.ndarray, endpoints: np.ndarray, radii: np.ndarray
-) -> np.ndarray:
-    """Signed distance from points to the union of capsules (negative inside).
-
-    Parameters
-    ----------
-    points : (N, 3) float
-    endpoints : (K, 2, 3) float
-    radii : (K,) float
-
-    Returns
-    -------
-    (N,) float32
-    """
-    x = np.asarray(points, np.float64)[:, None, :]  # (N, 1, 3)
-    a = np.asarray(endpoints, np.float64)[None, :, 0]
-    d = np.asarray(endpoints, np.float64)[None, :, 1] - a
-    dd = np.maximum((d * d).sum(-1), 1e-20)
-    s = np.clip(((x - a) * d).sum(-1) / dd, 0.0, 1.0)
-    dist = np.linalg.norm(x - (a + s[..., None] * d), axis=-1) - np.asarray(radii)[None]
-    return dist.min(axis=1).astype(np.float32)

@@ -6,10 +6,11 @@ import os
 
 import numpy as np
 
+from core.body.colliders import capsule_distance
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.fileio import atomic_path
 from core.sim.cache import SimCache
-from core.sim.colliders import body_capsules, capsule_signed_distance, pose_capsules
+from core.sim.colliders import body_capsules, pose_capsules
 
 
 def pick_frames(num_frames: int, count: int) -> np.ndarray:
@@ -73,7 +74,7 @@ def contact_sheet(
         ax = fig.add_subplot(rows, columns, i + 1, projection="3d")
         v = cache.positions[t].astype(np.float64)
         centre = v.mean(axis=0)
-        inside = capsule_signed_distance(v, ends[i], capsules.radii) < 0
+        inside = capsule_distance(v, ends[i], capsules.radii) < 0
         tris = [v[faces]]
         bases = [np.where(inside[faces].any(axis=1)[:, None], (0.85, 0.15, 0.1), (0.2, 0.4, 0.8))]
         if body_v is not None:  # one collection, so body and garment are depth-sorted together

@@ -31,13 +31,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from core.body.colliders import capsule_distance
 from core.body.shape import MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
 from core.errors import InputError
 from core.mesh import Mesh
 from core.sim.cache import SimCache
 from core.sim.colliders import (
     body_capsules,
-    capsule_signed_distance,
     is_arm,
     pose_capsules,
     select_capsules,
@@ -150,7 +150,7 @@ def penetration_depths(
     """
     out = np.empty(positions.shape[:2], np.float32)
     for t in range(len(positions)):
-        out[t] = np.maximum(-capsule_signed_distance(positions[t], capsule_ends[t], radii), 0.0)
+        out[t] = np.maximum(-capsule_distance(positions[t], capsule_ends[t], radii), 0.0)
     return out
 
 
