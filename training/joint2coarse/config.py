@@ -3,17 +3,21 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
+from typing import ClassVar
 
 from core.errors import InputError
+from training.configs import PlainConfig
 
 
 @dataclass(frozen=True)
-class Joint2CoarseConfig:
+class Joint2CoarseConfig(PlainConfig):
     """Joint motion -> coarse proxy: descriptor, network sizes, training schedule.
 
     The defaults are the paper's (DESIGN, "The method"); ``PRESETS`` names smaller ones.
     """
+
+    kind: ClassVar[str] = "joint2coarse"
 
     window: int = 34
     """Frames of motion history the descriptor covers (current frame included)."""
@@ -105,18 +109,6 @@ class Joint2CoarseConfig:
         """Encoder hidden widths for a proxy of ``n_vertices`` (the small-proxy rule)."""
         scale = min(1.0, n_vertices / self.width_reference_vertices)
         return tuple(max(self.min_width, min(w, math.ceil(w * scale))) for w in self.encoder_widths)
-
-    def to_dict(self) -> dict:
-        """Plain types only (tuples as lists): safe inside a ``weights_only`` checkpoint."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
-
-    @classmethod
-    def from_dict(cls, data: dict) -> Joint2CoarseConfig:
-        names = {f.name for f in fields(cls)}
-        unknown = set(data) - names
-        if unknown:
-            raise InputError(f"unknown joint2coarse config keys {sorted(unknown)}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
 #: Named configurations. ``paper``: the published sizes. ``fast``: a quick look on a laptop.

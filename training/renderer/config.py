@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, replace
+from typing import ClassVar
 
 from core.errors import InputError
+from training.configs import PlainConfig
 
 #: Channels of the paper's motion features: 19 joints x 5 frames (core.features layout).
 MOTION_CHANNELS = 95
@@ -13,12 +15,14 @@ GAN_MODES = ("hinge", "lsgan")
 
 
 @dataclass(frozen=True)
-class RendererConfig:
+class RendererConfig(PlainConfig):
     """Neural texture, rendering network, discriminator, losses and training schedule.
 
     The defaults are the ``cpu`` preset (small widths, 128 px); ``PRESETS["paper"]`` has the
     published sizes (DESIGN, "The method").
     """
+
+    kind: ClassVar[str] = "renderer"
 
     image_size: int = 128
     """Training image size in pixels (square); the network works on any size divisible by
@@ -143,18 +147,6 @@ class RendererConfig:
     def in_channels(self) -> int:
         """Network input channels: texture + motion (159 in the paper), texture only without motion."""
         return self.texture_out_channels + (self.motion_channels if self.use_motion else 0)
-
-    def to_dict(self) -> dict:
-        """Plain types only (tuples as lists): safe inside a ``weights_only`` checkpoint."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
-
-    @classmethod
-    def from_dict(cls, data: dict) -> RendererConfig:
-        names = {f.name for f in fields(cls)}
-        unknown = set(data) - names
-        if unknown:
-            raise InputError(f"unknown renderer config keys {sorted(unknown)}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
     def replace(self, **changes) -> RendererConfig:
         """A copy with some fields changed (validated)."""
