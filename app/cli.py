@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 
-from app.commands import COMMANDS
+from app.commands import COMMANDS, present_modules
 from core.errors import InputError
 
 
@@ -17,13 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"app.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"app.commands.{name}":
-                continue
-            raise
+    for _, module in present_modules("app.commands", COMMANDS):
         module.register(sub)
     return parser
 

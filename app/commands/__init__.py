@@ -10,3 +10,20 @@ COMMANDS = (
     "demo", "motion", "body", "garment", "proxy", "simulate", "dataset",
     "train", "predict", "render", "finetune", "eval", "bench", "gui",
 )  # fmt: skip
+
+
+def present_modules(package: str, names):
+    """Import ``package.name`` for each name, skipping the modules not written yet.
+
+    Yields ``(name, module)``. An import error inside a module that exists is raised, not hidden.
+    """
+    import importlib
+
+    for name in names:
+        try:
+            module = importlib.import_module(f"{package}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"{package}.{name}":
+                continue
+            raise
+        yield name, module

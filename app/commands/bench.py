@@ -8,7 +8,8 @@ Each bench module defines ``add_arguments(parser)`` and ``run(args) -> int`` and
 from __future__ import annotations
 
 import argparse
-import importlib
+
+from app.commands import present_modules
 
 
 def register(subparsers) -> None:
@@ -21,13 +22,7 @@ def register(subparsers) -> None:
     )
     sub = p.add_subparsers(dest="bench", metavar="BENCH")
     sub.required = True
-    for name in BENCHES:
-        try:
-            module = importlib.import_module(f"app.bench.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"app.bench.{name}":
-                continue
-            raise
+    for name, module in present_modules("app.bench", BENCHES):
         text = getattr(module, "HELP", None) or (module.__doc__ or name).strip().splitlines()[0]
         b = sub.add_parser(name, help=text, description=module.__doc__)
         module.add_arguments(b)
