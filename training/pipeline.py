@@ -395,6 +395,7 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
             "ms_per_frame": 1e3 * seconds / len(positions),
             "strain_max": float(max(strain.max(), 0.0)),
             "strain_mean": float(np.maximum(strain, 0.0).mean()),
+            "strain_p99": float(max(np.percentile(strain, 99), 0.0)),
             "compression_max": float(max(-strain.min(), 0.0)),
             "penetration_mean_mm": float(depth.mean() * 1e3),
             "penetration_max_mm": float(depth.max() * 1e3),

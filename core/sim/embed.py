@@ -9,10 +9,10 @@ distance)::
 
 This is exact at rest and under rigid motion of the proxy, and smooth: neighbouring target
 vertices share their proxy vertices and nearly their weights, so inner layers several
-centimetres inside the proxy move with it instead of tearing apart (a per-face closest-point
-attachment amplifies small normal turns by the offset and tore the multi-layer skirt's inner
-tiers to 5x their length; measured on the quick demo's 39k-vertex skirt over 300 dance frames:
-99th-percentile edge stretch 5.4 with closest points, 0.8 with 16 skinned neighbours).
+centimetres inside the proxy move with it instead of tearing apart (a per-face closest-point attachment, tried first, amplified small normal turns by the offset
+and tore the multi-layer skirt's inner tiers apart). On the quick demo's 39k-vertex skirt over
+300 dance frames the 99th-percentile edge stretch is 0.8 (``dng demo``: ``strain_p99`` in
+``sim/dance-target/report.json``).
 
 The studio uses this when simulating the full detailed target is too slow or unstable (stacked
 layers millimetres apart, many loose parts): the target then follows the proxy's dynamics, its
