@@ -9,8 +9,9 @@ distance)::
 
 This is exact at rest and under rigid motion of the proxy, and smooth: neighbouring target
 vertices share their proxy vertices and nearly their weights, so inner layers several
-centimetres inside the proxy move with it instead of tearing apart (a per-face closest-point attachment, tried first, amplified small normal turns by the offset
-and tore the multi-layer skirt's inner tiers apart). On the quick demo's 39k-vertex skirt over
+centimetres inside the proxy move with it instead of tearing apart (a per-face closest-point
+attachment, tried first, amplified small normal turns by the offset and tore the multi-layer
+skirt's inner tiers apart). On the quick demo's 39k-vertex skirt over
 300 dance frames the 99th-percentile edge stretch is 0.8 (``dng demo``: ``strain_p99`` in
 ``sim/dance-target/report.json``).
 
