@@ -156,6 +156,37 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return (n / np.maximum(length, 1e-30)).astype(np.float32)
 
 
+def headlight_shading(
+    fragments, vertices: np.ndarray, faces: np.ndarray, camera, ambient: float = 0.2
+) -> np.ndarray:
+    """Plain grey shading of a mesh lit from the camera: (H, W) float32 in [0, 1], 0 off it.
+
+    Lambert with a light at the eye, two-sided (|n . view|), smooth vertex normals interpolated
+    with the fragments' barycentrics. This is the "shaded proxy render" the Pix2Pix baseline
+    starts from; it carries the proxy's shape and silhouette and nothing of the target.
+
+    Parameters
+    ----------
+    fragments : core.raster.Fragments of ``vertices``/``faces`` seen by ``camera``
+    vertices : (V, 3) float world positions; faces : (F, 3) int
+    camera : core.camera.Camera
+    ambient : shade of a surface seen edge-on
+    """
+    from core.camera import world_to_camera
+    from core.features import interpolate
+
+    normals = vertex_normals(vertices, faces) @ camera.R.T.astype(np.float32)  # camera space
+    n = interpolate(fragments, faces, normals)  # (H, W, 3)
+    h, w = fragments.face_id.shape
+    # Direction to the eye of each pixel's surface point, in camera space.
+    p = interpolate(fragments, faces, world_to_camera(vertices, camera).astype(np.float32))
+    to_eye = -p / np.maximum(np.linalg.norm(p, axis=-1, keepdims=True), 1e-12)
+    length = np.maximum(np.linalg.norm(n, axis=-1), 1e-12)
+    cos = np.abs((n * to_eye).sum(-1)) / length
+    shade = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
+    return np.where(fragments.mask, shade, 0.0).astype(np.float32).reshape(h, w)
+
+
 def _pattern_mix(material: Material, uv: np.ndarray) -> np.ndarray:
     """Weight (N,) of the pattern colour at UVs (N, 2)."""
     s = material.pattern_scale

@@ -53,3 +53,19 @@ def assert_close(actual, expected, atol=1e-6, rtol=0.0, what="arrays"):
             f"{what}: max difference {diff[idx]:.3g} at {idx} "
             f"(actual {actual[idx]:.6g}, expected {expected[idx]:.6g}, atol {atol}, rtol {rtol})"
         )
+
+
+@pytest.fixture(scope="session")
+def smoke_project(tmp_path_factory, bvh_dir) -> Path:
+    """A project made by the ``smoke`` preset of ``dng demo`` (every stage, the neural renderer
+    and the evaluation included), shared by the whole session: treat it as read-only (write
+    only into subfolders of your own, like ``finetune/NAME``)."""
+    import torch
+
+    from training.demo import run_demo
+    from training.pipeline import PRESETS
+
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("smoke-project")
+    run_demo(PRESETS["smoke"], out, preset_name="smoke")
+    return out

@@ -15,12 +15,8 @@ from training.pipeline import PRESETS, PipelineConfig, preset, project_config
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory, bvh_dir):
-    from training.demo import run_demo
-
-    out = tmp_path_factory.mktemp("demo")
-    report = run_demo(PRESETS["smoke"], out, preset_name="smoke")
-    return out, report
+def smoke(smoke_project):
+    return smoke_project, json.loads((smoke_project / "report.json").read_text())
 
 
 def test_smoke_demo_runs_every_stage_and_reports(smoke):
@@ -33,6 +29,8 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         "dance-target",
         "twirl-proxy",
         "cmu-01_01-proxy",
+        "twirl-target",
+        "cmu-01_01-target",
     }
     for name, sim in report["simulation"].items():
         assert sim["finite"], name
@@ -67,7 +65,7 @@ def test_dataset_samples_match_the_renderer_contract(smoke):
         s = data[0]
         assert set(s) == set(SAMPLE_KEYS)
         channels = {"uv": 2, "motion": 95, "proxy_mask": 1, "target": 3, "background": 3}
-        for key, c in {**channels, "target_mask": 1}.items():
+        for key, c in {**channels, "target_mask": 1, "proxy_shading": 1}.items():
             assert tuple(s[key].shape) == (3, c, size, size), key
             assert np.isfinite(s[key].numpy()).all()
         assert 0 <= s["target"].min() and s["target"].max() <= 1
@@ -78,10 +76,48 @@ def test_dataset_samples_match_the_renderer_contract(smoke):
             assert (s["uv"].numpy()[j][:, off] == 0).all() and (
                 s["motion"].numpy()[j][:, off] == 0
             ).all()
+        shade = s["proxy_shading"].numpy()[:, 0]
+        assert (shade[~covered] == 0).all() and (shade[covered] >= 0.2 - 1e-6).all()
+        assert shade.max() <= 1.0
         # The garment is in the ground truth and absent from the body-only background.
         garment = s["target_mask"].numpy()[:, 0] > 0.5
         diff = np.abs(s["target"].numpy() - s["background"].numpy()).sum(1)
         assert garment.any() and diff[garment].mean() > 0.05
+
+
+def test_renderer_stage_trains_and_reports(smoke):
+    from training.pipeline import read_loss_log
+    from training.renderer.train import load_model
+
+    out, report = smoke
+    r = report["renderer"]
+    assert r["steps"] == PRESETS["smoke"].renderer_steps and r["skipped_steps"] == 0
+    assert r["source"] == "sim" and r["samples"] > 0
+    config, net, disc = load_model(out / "renderer" / "renderer.pt")
+    assert config.image_size == PRESETS["smoke"].image_size and disc is not None
+    rows = read_loss_log(out / "renderer" / "renderer_loss.csv")
+    assert rows[-1]["step"] == r["steps"] and all(np.isfinite(row["l1"]) for row in rows)
+    assert "perceptual" not in rows[0]  # off without VGG weights: logged as "off", not a number
+    assert (out / "renderer" / "loss.png").stat().st_size > 1000
+    assert list((out / "renderer" / "previews").glob("step_*.png"))
+
+
+def test_test_sets_come_from_unseen_cameras(smoke):
+    from training.dataset import GarmentDataset
+
+    out, _ = smoke
+    train = json.loads((out / "dataset" / "samples.json").read_text())["samples"]
+    train_cams = {json.dumps(s["camera"]["extrinsic"]) for s in train}
+    for name in ("twirl", "cmu-01_01"):
+        index = json.loads((out / "testset" / name / "samples.json").read_text())
+        assert index["motion"] == name and index["samples"]
+        assert not train_cams & {json.dumps(s["camera"]["extrinsic"]) for s in index["samples"]}
+        data = GarmentDataset(out, source="joint2coarse", split=name)
+        s = data[0]
+        assert s["target"].shape[-1] == PRESETS["smoke"].image_size
+        assert s["proxy_mask"].sum() > 0 and s["target_mask"].sum() > 0
+    with pytest.raises(InputError, match="run the testset stage first"):
+        GarmentDataset(out, split="walk")
 
 
 def test_cli_commands_on_the_project(smoke, tmp_path, bvh_dir):

@@ -25,6 +25,8 @@ SAMPLE_KEYS = {
     "target": "(3, 3, H, W) float32: ground truth (garment + body) in [0, 1]",
     "background": "(3, 3, H, W) float32: the same view, body only, in [0, 1]",
     "target_mask": "(3, 1, H, W) float32: garment coverage in the ground truth",
+    "proxy_shading": "(3, 1, H, W) float32: the proxy shaded grey from the camera, 0 off it "
+    "(the Pix2Pix baseline's input; the neural renderer does not read it)",
 }
 
 
@@ -74,6 +76,8 @@ class GarmentDataset:
     project_root : the project folder (after ``stage_dataset``)
     source : ``"sim"`` (simulated proxy) or ``"joint2coarse"`` (predicted proxy)
     features : the motion-feature settings (sigma, frame offsets)
+    split : None for the training set (``dataset/``), or a test motion's name for its
+        evaluation set from unseen cameras (``testset/NAME/``, made by ``stage_testset``)
     """
 
     def __init__(
@@ -81,15 +85,18 @@ class GarmentDataset:
         project_root: str | Path,
         source: str = "sim",
         features: FeatureConfig | None = None,
+        split: str | None = None,
     ):
         from core.camera import camera_from_dict
         from core.motion.load import load_motion
         from training.joint2coarse import joint2coarse_inputs
 
         self.root = Path(project_root)
-        index_path = self.root / "dataset" / "samples.json"
+        self.folder = self.root / "dataset" if split is None else self.root / "testset" / split
+        index_path = self.folder / "samples.json"
         if not index_path.is_file():
-            raise InputError("no data set here: run the dataset stage first", index_path)
+            stage = "dataset" if split is None else "testset"
+            raise InputError(f"no data set here: run the {stage} stage first", index_path)
         index = json.loads(index_path.read_text())
         motion_name = index["motion"]
         if source == "sim":
@@ -100,12 +107,14 @@ class GarmentDataset:
         elif source == "joint2coarse":
             cache = self.root / "joint2coarse" / f"pred-{motion_name}.npz"
             if not cache.is_file():
-                raise InputError("no Joint2Coarse prediction of the training motion", cache)
+                raise InputError(f"no Joint2Coarse prediction of {motion_name}", cache)
             positions = np.load(cache)["positions"]
         else:
             raise InputError(f"source must be 'sim' or 'joint2coarse', got {source!r}")
         self.source = source
+        self.split = split
         self.proxy = load_proxy_frames(self.root, positions)
+        self._seamless_faces = self.proxy.seam_map[self.proxy.faces]
         motion = load_motion(self.root / "motions" / f"{motion_name}.bvh")
         joints, _ = joint2coarse_inputs(motion)
         self.joints = joints[:, 1:]  # the 19 canonical joints (Hips dropped)
@@ -123,9 +132,11 @@ class GarmentDataset:
         return len(self.samples)
 
     def proxy_maps(self, t: int, camera) -> dict[str, np.ndarray]:
-        """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W) at frame t."""
+        """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W) and grey
+        headlight shading (1, H, W) at frame t."""
         from core.features import interpolate, joint_window, vertex_motion_features
         from core.raster import rasterize
+        from core.shading import headlight_shading
 
         v = self.proxy.vertices(t)
         frags = rasterize(v, self.proxy.faces, camera)
@@ -135,6 +146,10 @@ class GarmentDataset:
             "uv": interpolate(frags, self.proxy.faces, self.proxy.uvs).transpose(2, 0, 1),
             "motion": interpolate(frags, self.proxy.faces, feats).transpose(2, 0, 1),
             "proxy_mask": frags.mask[None].astype(np.float32),
+            # Seam-free faces (same order): smooth normals across the UV seams.
+            "proxy_shading": headlight_shading(
+                frags, self.proxy.positions[t], self._seamless_faces, camera
+            )[None],
         }
 
     def __getitem__(self, i: int) -> dict:
@@ -147,7 +162,7 @@ class GarmentDataset:
         frames = [self.proxy_maps(f, camera) for f in (t - 1, t, t + 1)]
         out = {key: np.stack([fr[key] for fr in frames]) for key in frames[0]}
         w = camera.width
-        base = self.root / "dataset" / "samples" / sample_name(t, k)
+        base = self.folder / "samples" / sample_name(t, k)
         for key, suffix in (("target", "image"), ("background", "background")):
             strip = np.asarray(Image.open(f"{base}_{suffix}.png").convert("RGB"), np.float32) / 255
             out[key] = np.stack(

@@ -15,6 +15,9 @@ Stages and their folders::
                 t-1, t, t+1: ground truth, body-only background, garment mask
     joint2coarse/    the trained model, its loss log, pred-MOTION.npz for the training and
                      every test motion, report.json
+    renderer/   renderer.pt (the neural renderer), renderer_loss.csv, loss.png, previews/,
+                report.json
+    testset/NAME/    ground truth of each test motion from unseen cameras (dataset layout)
 """
 
 from __future__ import annotations
@@ -93,6 +96,23 @@ class PipelineConfig:
     """Every this many frames of the training motion is the centre of samples."""
     image_size: int = 128
     """Training image width and height in pixels (the paper: 512)."""
+    test_views: int = 2
+    """Unseen cameras per evaluated frame of each test motion (``testset/``)."""
+    test_stride: int = 5
+    """Every this many frames of a test motion is the centre of an evaluation sample."""
+    renderer_preset: str = "cpu"
+    """Neural renderer preset (``training.renderer.PRESETS``: tiny, cpu, paper) ..."""
+    renderer_steps: int | None = None
+    """... with its step count overridden when given (baselines train as many steps)."""
+    renderer_source: str = "sim"
+    """The proxy the renderer trains on: ``sim`` (simulated, the paper) or ``joint2coarse``
+    (predicted, so it learns to hide Joint2Coarse's errors). Test time always uses
+    Joint2Coarse's prediction."""
+    baselines: tuple[str, ...] = ("pix2pix", "dnr", "dnr-gan")
+    """Baselines trained on the same data set for the comparison (``training.baselines.KINDS``);
+    each trains ``renderer_steps`` steps, like ours."""
+    inception_path: str = ""
+    """InceptionV3 weights (torchvision layout) for FID; empty: FID is reported unavailable."""
     joint2coarse_preset: str = "fast"
     """Joint2Coarse preset name (``training.joint2coarse.PRESETS``) ..."""
     joint2coarse_steps: tuple[int, int, int] | None = None
@@ -115,6 +135,8 @@ class PipelineConfig:
             data["body"] = BodyShape(**data.get("body", {}))
             data["train_motion"] = MotionSpec(**data["train_motion"])
             data["test_motions"] = tuple(MotionSpec(**m) for m in data.get("test_motions", ()))
+            if "baselines" in data:
+                data["baselines"] = tuple(data["baselines"])
             if data.get("joint2coarse_steps") is not None:
                 data["joint2coarse_steps"] = tuple(data["joint2coarse_steps"])
             return cls(**data)
@@ -148,6 +170,10 @@ PRESETS: dict[str, PipelineConfig] = {
         views_per_frame=2,
         frame_stride=6,
         image_size=64,
+        test_views=1,
+        test_stride=6,
+        renderer_preset="tiny",
+        renderer_steps=30,
         joint2coarse_steps=(300, 300, 100),
     ),
     # The default: minutes on 2 cores, results that look like the garment.
@@ -165,6 +191,7 @@ PRESETS: dict[str, PipelineConfig] = {
         views_per_frame=10,
         frame_stride=1,
         image_size=512,
+        renderer_preset="paper",
         joint2coarse_preset="paper",
     ),
 }
@@ -552,6 +579,286 @@ def _side_by_side(path: Path, reference, predicted: np.ndarray, body, motion) ->
     write_png(path, contact_sheet(tiles, labels, columns=len(frames)))
 
 
+# ---------------------------------------------------------------------------------- renderer
+
+
+def renderer_config(config: PipelineConfig):
+    """The project's neural-renderer configuration: the preset at the project's image size."""
+    from training.renderer.config import preset as renderer_preset
+
+    cfg = renderer_preset(config.renderer_preset).replace(
+        image_size=config.image_size, seed=config.seed
+    )
+    if config.renderer_steps is not None:
+        cfg = cfg.replace(steps=config.renderer_steps)
+    return cfg
+
+
+def _proxy_source_file(project: Project, source: str, motion_name: str) -> Path:
+    if source == "sim":
+        return project.path(f"sim/{motion_name}-proxy", "cache.npz")
+    if source == "joint2coarse":
+        return project.path("joint2coarse", f"pred-{motion_name}.npz")
+    raise InputError(f"renderer_source must be 'sim' or 'joint2coarse', got {source!r}")
+
+
+def stage_renderer(
+    project: Project, config: PipelineConfig, log: Log = _quiet, progress: bool = True
+) -> dict:
+    """Train the neural renderer on the project's data set: ``renderer/``.
+
+    Writes ``renderer.pt`` (load with :func:`training.renderer.train.load_model`), the CSV loss
+    log, ``loss.png`` (loss curves), ``previews/step_N.png`` (prediction | ground truth) and
+    ``report.json`` (steps, seconds per step, first and last logged losses). A run killed half
+    way resumes from its checkpoint.
+    """
+    import torch
+
+    from training.dataset import GarmentDataset
+    from training.renderer.train import train_renderer
+
+    cfg = renderer_config(config)
+    train = config.train_motion.name
+    source_file = _proxy_source_file(project, config.renderer_source, train)
+    index = project.path("dataset", "samples.json")
+    params = {"renderer": cfg.to_dict(), "source": config.renderer_source}
+
+    def work(out: Path) -> list[str]:
+        torch.set_num_threads(config.torch_threads)
+        data = GarmentDataset(project.root, source=config.renderer_source)
+        start = time.perf_counter()
+        result = train_renderer(data, out, cfg, progress=progress)
+        seconds = time.perf_counter() - start
+        rows = read_loss_log(result.log_path)
+        plot_losses(rows, out / "loss.png", f"neural renderer ({config.renderer_preset})")
+        report = {
+            "config": cfg.to_dict(),
+            "source": config.renderer_source,
+            "samples": len(data),
+            "steps": result.steps,
+            "resumed_at_step": result.resumed_at_step,
+            "skipped_steps": result.skipped_steps,
+            "perceptual": result.perceptual,
+            "seconds": seconds,
+            "seconds_per_step": seconds / max(result.steps - result.resumed_at_step, 1),
+            "first": rows[0] if rows else None,
+            "last": rows[-1] if rows else None,
+        }
+        write_json(out / "report.json", report)
+        if rows:
+            log(
+                f"  {result.steps} steps, L1 {rows[0]['l1']:.4f} -> {rows[-1]['l1']:.4f}, "
+                f"{report['seconds_per_step']:.2f} s/step"
+            )
+        previews = sorted(p.relative_to(out).as_posix() for p in (out / "previews").glob("*.png"))
+        return [result.model_path.name, result.log_path.name, "loss.png", "report.json", *previews]
+
+    project.run_stage(
+        "renderer", params, [index, source_file, project.path("proxy", "proxy.obj")], work
+    )
+    import json
+
+    return json.loads(project.path("renderer", "report.json").read_text())
+
+
+def read_loss_log(path: Path) -> list[dict]:
+    """Rows of a CSV loss log as dicts of floats (``off`` and empty cells dropped)."""
+    import csv
+
+    rows = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            parsed = {}
+            for k, v in row.items():
+                try:
+                    parsed[k] = float(v)
+                except (TypeError, ValueError):
+                    continue
+            rows.append(parsed)
+    return rows
+
+
+def plot_losses(rows: list[dict], path: Path, title: str) -> None:
+    """Loss curves (every logged column but bookkeeping) against step, as a PNG, atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from core.fileio import atomic_path
+
+    skip = {"step", "epoch", "skipped", "seconds"}
+    fig, ax = plt.subplots(figsize=(6, 3.5), dpi=100)
+    if rows:
+        steps = [r["step"] for r in rows]
+        for key in rows[0]:
+            if key in skip:
+                continue
+            ax.plot(steps, [r.get(key, np.nan) for r in rows], label=key)
+        ax.set_yscale("symlog", linthresh=1e-2)
+        ax.legend(fontsize=7, ncol=3)
+    ax.set_xlabel("step")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def baseline_config(config: PipelineConfig, kind: str):
+    """A baseline's configuration: the preset matching the renderer's, as many steps as ours."""
+    from training.baselines import PRESETS as BASELINE_PRESETS
+
+    if kind not in BASELINE_PRESETS:
+        raise InputError(f"unknown baseline {kind!r}; choose from {sorted(BASELINE_PRESETS)}")
+    names = BASELINE_PRESETS[kind]
+    name = config.renderer_preset if config.renderer_preset in names else "cpu"
+    return names[name].replace(
+        image_size=config.image_size, seed=config.seed, steps=renderer_config(config).steps
+    )
+
+
+def stage_baseline(
+    project: Project, config: PipelineConfig, kind: str, log: Log = _quiet, progress: bool = True
+) -> dict:
+    """Train one baseline on the renderer's data set: ``baselines/KIND/`` (model, loss log,
+    ``loss.png``, ``report.json``)."""
+    import torch
+
+    from training.baselines import train_baseline
+    from training.dataset import GarmentDataset
+
+    cfg = baseline_config(config, kind)
+    source_file = _proxy_source_file(project, config.renderer_source, config.train_motion.name)
+    stage = f"baselines/{kind}"
+    params = {"kind": kind, "baseline": cfg.to_dict(), "source": config.renderer_source}
+
+    def work(out: Path) -> list[str]:
+        torch.set_num_threads(config.torch_threads)
+        data = GarmentDataset(project.root, source=config.renderer_source)
+        start = time.perf_counter()
+        result = train_baseline(kind, data, out, cfg, progress=progress)
+        seconds = time.perf_counter() - start
+        rows = read_loss_log(result.log_path)
+        plot_losses(rows, out / "loss.png", f"baseline {kind}")
+        report = {
+            "kind": kind,
+            "config": cfg.to_dict(),
+            "steps": result.steps,
+            "skipped_steps": result.skipped_steps,
+            "seconds": seconds,
+            "seconds_per_step": seconds / max(result.steps - result.resumed_at_step, 1),
+            "first": rows[0] if rows else None,
+            "last": rows[-1] if rows else None,
+        }
+        write_json(out / "report.json", report)
+        log(f"  {kind}: {result.steps} steps, {report['seconds_per_step']:.2f} s/step")
+        return [result.model_path.name, result.log_path.name, "loss.png", "report.json"]
+
+    inputs = [project.path("dataset", "samples.json"), source_file]
+    project.run_stage(stage, params, inputs, work)
+    import json
+
+    return json.loads(project.path(stage, "report.json").read_text())
+
+
+def stage_baselines(
+    project: Project, config: PipelineConfig, log: Log = _quiet, progress: bool = True
+) -> dict:
+    """Every baseline of ``config.baselines`` (:func:`stage_baseline`), one after another."""
+    return {kind: stage_baseline(project, config, kind, log, progress) for kind in config.baselines}
+
+
+def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Path, str]]:
+    """The methods ``stage_eval`` scores: name -> (model file, proxy source at test time).
+
+    ``ours`` renders Joint2Coarse's proxy (no simulation at test time, the method's claim);
+    ``ours (simulated proxy)`` renders the simulated proxy of the same motion, which separates
+    the renderer's error from Joint2Coarse's. Baselines render Joint2Coarse's proxy too.
+    """
+    methods = {
+        "ours": (project.path("renderer", "renderer.pt"), "joint2coarse"),
+        "ours (simulated proxy)": (project.path("renderer", "renderer.pt"), "sim"),
+    }
+    for kind in config.baselines:
+        methods[kind] = (project.path(f"baselines/{kind}", f"{kind}.pt"), "joint2coarse")
+    return methods
+
+
+def stage_eval(project: Project, config: PipelineConfig, log: Log = _quiet) -> dict:
+    """Score every method on every test motion from unseen cameras: ``eval/report.json`` and
+    ``eval/compare-MOTION.png`` (ground truth and each method on the same frames)."""
+    import torch
+
+    from core.shading import contact_sheet, write_png
+    from training.baselines import load_for_evaluation
+    from training.dataset import GarmentDataset
+    from training.evaluate import EvalConfig, evaluate_motion, fid_scores
+    from training.metrics import FrameMetrics
+
+    tests = [m.name for m in available_test_motions(config)]
+    methods = eval_methods(project, config)
+    eval_cfg = EvalConfig(inception_path=config.inception_path)
+    inputs = [path for path, _ in methods.values()]
+    for name in tests:
+        inputs += [
+            project.path(f"testset/{name}", "samples.json"),
+            project.path("joint2coarse", f"pred-{name}.npz"),
+            project.path(f"sim/{name}-proxy", "cache.npz"),
+        ]
+    params = {"eval": eval_cfg.to_dict(), "methods": {k: v[1] for k, v in methods.items()}}
+
+    def work(out: Path) -> list[str]:
+        torch.set_num_threads(config.torch_threads)
+        models = {name: load_for_evaluation(path) for name, (path, _) in methods.items()}
+        totals = {name: FrameMetrics() for name in methods}
+        report: dict = {"methods": {}, "motions": {}, "test_motions": tests}
+        outputs = []
+        for motion in tests:
+            data = {
+                src: GarmentDataset(project.root, source=src, split=motion)
+                for src in {s for _, s in methods.values()}
+            }
+            log(
+                f"  evaluating {motion}: {len(data['joint2coarse'])} samples x {len(methods)} methods"
+            )
+            results, gt_tiles = evaluate_motion(
+                {name: (models[name], data[src]) for name, (_, src) in methods.items()}, eval_cfg
+            )
+            report["motions"][motion] = {
+                name: {"samples": len(data[methods[name][1]]), **r.metrics.summary()}
+                for name, r in results.items()
+            }
+            for name, r in results.items():
+                for metric, values in r.metrics.values.items():
+                    totals[name].add(metric, values)
+            tiles, labels = [], []
+            for row_name, row in (
+                ("ground truth", gt_tiles),
+                *((n, r.tiles) for n, r in results.items()),
+            ):
+                tiles += row
+                labels += [row_name] * len(row)
+            write_png(
+                out / f"compare-{motion}.png", contact_sheet(tiles, labels, columns=len(gt_tiles))
+            )
+            outputs.append(f"compare-{motion}.png")
+            for name, r in results.items():
+                report["motions"][motion][name].update(fid_scores(r, eval_cfg))
+        for name in methods:
+            report["methods"][name] = totals[name].summary()
+        ours, dnr = report["methods"]["ours"], report["methods"].get("dnr")
+        if dnr and dnr["mse"]["mean"]:
+            report["mse_ratio_ours_to_dnr"] = ours["mse"]["mean"] / dnr["mse"]["mean"]
+        write_json(out / "report.json", report)
+        return [*outputs, "report.json"]
+
+    project.run_stage("eval", params, inputs, work)
+    import json
+
+    return json.loads(project.path("eval", "report.json").read_text())
+
+
 # ---------------------------------------------------------------------------------- data set
 
 
@@ -589,13 +896,6 @@ def stage_dataset(project: Project, config: PipelineConfig, log: Log = _quiet) -
     ``..._background.png``, ``..._mask.png``; and ``samples.json`` with the cameras. Feature
     maps are not stored: :class:`training.dataset.GarmentDataset` rasterizes them on the fly.
     """
-    from core.body.mannequin import make_body
-    from core.body.skinning import pose_body
-    from core.camera import camera_to_dict, random_cameras
-    from core.mesh import Mesh, load_mesh
-    from core.shading import render_views, write_png
-    from core.sim import load_cache
-
     train = config.train_motion.name
     target_cache = project.path(f"sim/{train}-target", "cache.npz")
     motion_file = project.path("motions", f"{train}.bvh")
@@ -608,53 +908,119 @@ def stage_dataset(project: Project, config: PipelineConfig, log: Log = _quiet) -
     }
 
     def work(out: Path) -> list[str]:
-        from tqdm import tqdm
-
-        cache = load_cache(target_cache)
-        motion = load_project_motion(project, train)
-        rest, _ = load_mesh(project.path("garment", "target.obj"))
-        body = make_body(config.body)
-        body_frames = pose_body(body, motion)
-        rig = dataset_rig(config, rest.vertices)
-        root = motion.root_positions
-        centres = sample_frames(cache.num_frames, config.frame_stride)
-        cams = {}
-        for t in centres:
-            shift = np.array([root[t, 0], 0.0, root[t, 2]])
-            for k, cam in enumerate(random_cameras(config.views_per_frame, (config.seed, t), rig)):
-                e = cam.extrinsic.astype(np.float64).copy()
-                e[:3, 3] -= e[:3, :3] @ shift  # follow the body: the camera moves with the root
-                cams[(t, k)] = type(cam)(
-                    cam.K, e.astype(cam.extrinsic.dtype), cam.width, cam.height
-                )
-        # Render frame by frame: each frame is seen by the cameras of samples t-1, t, t+1.
-        strips: dict[tuple[int, int], list] = {key: [None] * 3 for key in cams}
-        frames = sorted({t + d for t in centres for d in (-1, 0, 1)})
-        for f in tqdm(frames, desc="ground truth", unit="frame", leave=False):
-            wanted = [(t, k, f - t + 1) for (t, k) in cams if abs(f - t) <= 1]
-            garment = Mesh(cache.positions[f], cache.faces)
-            body_mesh = Mesh(body_frames[f], body.faces)
-            views = render_views(garment, body_mesh, [cams[(t, k)] for t, k, _ in wanted])
-            for (t, k, slot), gt in zip(wanted, views):
-                strips[(t, k)][slot] = gt
-                if all(s is not None for s in strips[(t, k)]):
-                    _write_sample(out, t, k, strips.pop((t, k)), write_png)
-        samples = [
-            {"frame": t, "view": k, "camera": camera_to_dict(c)} for (t, k), c in cams.items()
-        ]
-        write_json(
-            out / "samples.json",
-            {"motion": train, "fps": cache.fps, "num_frames": cache.num_frames, "samples": samples},
-        )
+        samples = _render_samples(
+            project, config, train, out, seed=(config.seed,), views=config.views_per_frame,
+            stride=config.frame_stride, desc="ground truth",
+        )  # fmt: skip
         log(f"  {len(samples)} samples of 3 frames at {config.image_size} px")
-        return ["samples.json"] + [
-            f"samples/{sample_name(t, k)}_{kind}.png"
-            for (t, k) in cams
-            for kind in ("image", "background", "mask")
-        ]
+        return ["samples.json", *_sample_files(samples)]
 
     project.run_stage("dataset", params, [target_cache, motion_file], work)
     return project.stage_dir("dataset")
+
+
+def _render_samples(
+    project: Project,
+    config: PipelineConfig,
+    motion_name: str,
+    out: Path,
+    *,
+    seed: tuple[int, ...],
+    views: int,
+    stride: int,
+    desc: str,
+) -> list[dict]:
+    """Render the samples of one clip into ``out``: PNG strips and ``samples.json``.
+
+    For every centre t (:func:`sample_frames`) and each of ``views`` cameras
+    (``random_cameras(seed=(*seed, t))`` on :func:`dataset_rig`, following the body's root at
+    t), renders the target on the body and the body alone at frames t-1, t, t+1. Returns the
+    sample records written to ``samples.json``.
+    """
+    from tqdm import tqdm
+
+    from core.body.mannequin import make_body
+    from core.body.skinning import pose_body
+    from core.camera import camera_to_dict, random_cameras
+    from core.mesh import Mesh, load_mesh
+    from core.shading import render_views, write_png
+    from core.sim import load_cache
+
+    cache = load_cache(project.path(f"sim/{motion_name}-target", "cache.npz"))
+    motion = load_project_motion(project, motion_name)
+    rest, _ = load_mesh(project.path("garment", "target.obj"))
+    body = make_body(config.body)
+    body_frames = pose_body(body, motion)
+    rig = dataset_rig(config, rest.vertices)
+    root = motion.root_positions
+    centres = sample_frames(cache.num_frames, stride)
+    cams = {}
+    for t in centres:
+        shift = np.array([root[t, 0], 0.0, root[t, 2]])
+        for k, cam in enumerate(random_cameras(views, (*seed, t), rig)):
+            e = cam.extrinsic.astype(np.float64).copy()
+            e[:3, 3] -= e[:3, :3] @ shift  # follow the body: the camera moves with the root
+            cams[(t, k)] = type(cam)(cam.K, e.astype(cam.extrinsic.dtype), cam.width, cam.height)
+    # Render frame by frame: each frame is seen by the cameras of samples t-1, t, t+1.
+    strips: dict[tuple[int, int], list] = {key: [None] * 3 for key in cams}
+    frames = sorted({t + d for t in centres for d in (-1, 0, 1)})
+    for f in tqdm(frames, desc=desc, unit="frame", leave=False):
+        wanted = [(t, k, f - t + 1) for (t, k) in cams if abs(f - t) <= 1]
+        garment = Mesh(cache.positions[f], cache.faces)
+        body_mesh = Mesh(body_frames[f], body.faces)
+        views_f = render_views(garment, body_mesh, [cams[(t, k)] for t, k, _ in wanted])
+        for (t, k, slot), gt in zip(wanted, views_f):
+            strips[(t, k)][slot] = gt
+            if all(s is not None for s in strips[(t, k)]):
+                _write_sample(out, t, k, strips.pop((t, k)), write_png)
+    samples = [{"frame": t, "view": k, "camera": camera_to_dict(c)} for (t, k), c in cams.items()]
+    write_json(
+        out / "samples.json",
+        {"motion": motion_name, "fps": cache.fps, "num_frames": cache.num_frames,
+         "samples": samples},
+    )  # fmt: skip
+    return samples
+
+
+def _sample_files(samples: list[dict]) -> list[str]:
+    return [
+        f"samples/{sample_name(s['frame'], s['view'])}_{kind}.png"
+        for s in samples
+        for kind in ("image", "background", "mask")
+    ]
+
+
+def stage_testset(
+    project: Project, config: PipelineConfig, motion_name: str, log: Log = _quiet
+) -> Path:
+    """Ground truth of an unseen motion from unseen cameras: ``testset/MOTION/``.
+
+    Same layout as the training set (:func:`stage_dataset`), with cameras from another random
+    stream (``seed=(config.seed, 1, t)``), ``config.test_views`` per centre frame, every
+    ``config.test_stride`` frames. Needs the motion's target (``sim/MOTION-target``).
+    """
+    target_cache = project.path(f"sim/{motion_name}-target", "cache.npz")
+    stage = f"testset/{motion_name}"
+    params = {
+        "views": config.test_views,
+        "stride": config.test_stride,
+        "size": config.image_size,
+        "seed": config.seed,
+        "body": asdict(config.body),
+    }
+
+    def work(out: Path) -> list[str]:
+        samples = _render_samples(
+            project, config, motion_name, out, seed=(config.seed, 1), views=config.test_views,
+            stride=config.test_stride, desc=f"ground truth {motion_name}",
+        )  # fmt: skip
+        log(f"  {motion_name}: {len(samples)} test samples from unseen cameras")
+        return ["samples.json", *_sample_files(samples)]
+
+    project.run_stage(
+        stage, params, [target_cache, project.path("motions", f"{motion_name}.bvh")], work
+    )
+    return project.stage_dir(stage)
 
 
 def sample_name(t: int, k: int) -> str:
