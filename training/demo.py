@@ -13,12 +13,16 @@ from core.project import RECORD_NAME, Project
 from training.pipeline import (
     PipelineConfig,
     available_test_motions,
+    stage_baselines,
     stage_dataset,
+    stage_eval,
     stage_garment,
     stage_joint2coarse,
     stage_motions,
     stage_proxy,
+    stage_renderer,
     stage_simulate,
+    stage_testset,
 )
 
 
@@ -63,6 +67,42 @@ def _sim_bar(desc: str):
     return update
 
 
+def _baselines_worker(root: str, params: dict) -> dict:
+    """Child-process entry: train the baselines of a project (one torch thread)."""
+    from training.pipeline import PipelineConfig
+
+    def log(message: str) -> None:
+        print(f"[baselines]{message}", file=sys.stderr, flush=True)
+
+    return stage_baselines(Project(root), PipelineConfig.from_params(params), log, progress=False)
+
+
+def _start_baselines(project: Project, config: PipelineConfig, log) -> Callable[[], dict]:
+    """Train the baselines beside our renderer when there is a core for each (each trains with
+    ``torch_threads`` threads), else one after the other. Returns a call that waits for them."""
+    import os
+
+    if not config.baselines:
+        return dict
+    if (os.cpu_count() or 1) >= 2 * config.torch_threads:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        future = pool.submit(_baselines_worker, str(project.root), config.as_params())
+        log(f"  training the baselines ({', '.join(config.baselines)}) in a second process")
+
+        def wait() -> dict:
+            try:
+                return future.result()
+            finally:
+                pool.shutdown()
+
+        return wait
+    report = stage_baselines(project, config, log)
+    return lambda: report
+
+
 def run_demo(
     config: PipelineConfig, out: str | Path, *, preset_name: str = "custom", force: bool = False
 ) -> dict:
@@ -77,7 +117,10 @@ def run_demo(
     train = config.train_motion.name
     sims = [(train, "proxy")] + ([(train, "target")] if config.simulate_target else [])
     sims += [(name, "proxy") for name in tests]
-    progress = _Progress(total=4 + len(sims) + int(config.simulate_target))
+    if config.simulate_target:
+        sims += [(name, "target") for name in tests]
+    stages = 4 + len(sims) + (3 + len(tests)) * int(config.simulate_target)
+    progress = _Progress(total=stages)
     log = progress.log
     if len(tests) < len(config.test_motions):
         log("note: real motion capture not found (install assimp-testmodels); skipping it")
@@ -100,6 +143,25 @@ def run_demo(
             "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
         )
     j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
+    renderer = baselines = evaluation = None
+    if config.simulate_target:
+        for name in tests:
+            progress.stage(
+                f"test set {name} (unseen cameras)",
+                lambda n=name: stage_testset(project, config, n, log),
+            )
+        wait_for_baselines = _start_baselines(project, config, log)
+        try:
+            renderer = progress.stage(
+                "neural renderer" + (f" (baselines {', '.join(config.baselines)} beside it)"
+                                     if config.baselines else ""),
+                lambda: stage_renderer(project, config, log),
+            )  # fmt: skip
+        finally:
+            baselines = wait_for_baselines()
+        evaluation = progress.stage(
+            "evaluation (unseen motions, unseen cameras)", lambda: stage_eval(project, config, log)
+        )
 
     report = {
         "preset": preset_name,
@@ -109,6 +171,9 @@ def run_demo(
         "proxy": proxy_report,
         "simulation": sim_reports,
         "joint2coarse": j2c,
+        "renderer": renderer,
+        "baselines": baselines,
+        "evaluation": evaluation,
         "total_seconds": time.perf_counter() - progress.start,
     }
     write_json(project.root / "report.json", report)
@@ -116,6 +181,70 @@ def run_demo(
         f.write(report_markdown(report))
     log(f"done in {report['total_seconds'] / 60:.1f} min: {project.root / 'report.md'}")
     return report
+
+
+def _fmt(summary: dict | None, digits: int = 4) -> str:
+    if not summary or summary.get("mean") is None:
+        return "n/a"
+    return f"{summary['mean']:.{digits}f} ± {summary['std']:.{digits}f}"
+
+
+def _renderer_markdown(report: dict) -> list[str]:
+    """The renderer's training and the comparison table (the paper's Table 1)."""
+    r, ev = report.get("renderer"), report.get("evaluation")
+    if not r:
+        return []
+    cfg = r["config"]
+    lines = [
+        "",
+        "## Neural renderer",
+        "",
+        f"{r['steps']} steps at {cfg['image_size']} px on the {r['samples']} samples of `dataset/` "
+        f"({r['seconds_per_step']:.2f} s/step; perceptual loss "
+        f"{'on' if r['perceptual'] else 'off: no VGG19 weights file'}; "
+        f"{r['skipped_steps']} steps skipped by the NaN guard). "
+        f"L1 {r['first']['l1']:.4f} at step {r['first']['step']:.0f} -> {r['last']['l1']:.4f} "
+        f"at step {r['last']['step']:.0f}.",
+        "",
+        "![loss](renderer/loss.png)",
+    ]
+    for kind, b in (report.get("baselines") or {}).items():
+        lines.append(f"- baseline `{kind}`: {b['steps']} steps, {b['seconds_per_step']:.2f} s/step")
+    if not ev:
+        return lines
+    lines += [
+        "",
+        "## Evaluation: unseen motions from unseen cameras",
+        "",
+        f"Test motions: {', '.join(f'`{m}`' for m in ev['test_motions'])}. Each sample renders "
+        "frames t and t+1; MSE is the per-frame mean squared error of pixel values in [0, 1] "
+        "(mean ± std over frames); masked metrics are on the garment region; flicker is "
+        "mean |(R[t+1] - R[t]) - (I[t+1] - I[t])| (lower is steadier).",
+        "",
+        "| method | MSE | PSNR (dB) | SSIM | MSE, garment | SSIM, garment | flicker |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, m in ev["methods"].items():
+        lines.append(
+            f"| {name} | {_fmt(m['mse'])} | {_fmt(m['psnr'], 2)} | {_fmt(m['ssim'])} | "
+            f"{_fmt(m['mse_masked'])} | {_fmt(m['ssim_masked'])} | {_fmt(m['flicker'])} |"
+        )
+    if "mse_ratio_ours_to_dnr" in ev:
+        lines += ["", f"MSE of ours / DNR: {ev['mse_ratio_ours_to_dnr']:.2f} (the paper: 0.57)."]
+    first = next(iter(ev["motions"].values()), {})
+    fid = next(iter(first.values()), {}).get("fid", {})
+    if fid.get("value") is None:
+        lines += ["", f"FID and video FID: {fid.get('status', 'unavailable')}."]
+    else:
+        lines += ["", "| motion | method | FID | video FID |", "| --- | --- | --- | --- |"]
+        for motion, methods in ev["motions"].items():
+            for name, m in methods.items():
+                lines.append(
+                    f"| {motion} | {name} | {m['fid']['value']:.2f} | {m['video_fid']['value']:.2f} |"
+                )
+    lines += ["", "Ground truth (top row) and every method on the same frames:", ""]
+    lines += [f"![{m}](eval/compare-{m}.png)" for m in ev["motions"]]
+    return lines
 
 
 def report_markdown(report: dict) -> str:
@@ -198,6 +327,7 @@ def report_markdown(report: dict) -> str:
         )
     lines += ["", "Side by side (simulation above, prediction below):", ""]
     lines += [f"![{name}](joint2coarse/compare-{name}.png)" for name in j["motions"]]
+    lines += _renderer_markdown(report)
     lines += [
         "",
         f"Total: {report['total_seconds'] / 60:.1f} min. Configuration: `report.json` (`config`).",
