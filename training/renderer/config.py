@@ -27,8 +27,10 @@ class RendererConfig(PlainConfig):
     image_size: int = 128
     """Training image size in pixels (square); the network works on any size divisible by
     ``2 ** n_down`` at inference."""
-    texture_sizes: tuple[int, ...] = (512, 256, 128, 64)
-    """Texels per side of each neural-texture level (sampled bilinearly, concatenated)."""
+    texture_sizes: tuple[int, ...] = (256, 128, 64, 32)
+    """Texels per side of each neural-texture level (sampled bilinearly, concatenated). The
+    paper's (512, 256, 128, 64) has more texels than a 128 px image has garment pixels, and its
+    sampling backward dominates a CPU step; the ``paper`` preset has it."""
     texture_channels: int = 16
     """Channels per texture level (4 levels x 16 = 64 channels in the paper)."""
     motion_channels: int = MOTION_CHANNELS
@@ -42,6 +44,13 @@ class RendererConfig(PlainConfig):
     """Channels of the latent code (512 in the paper: 16 x 16 x 512 at 512 px)."""
     n_down: int = 3
     """Stride-2 encoder stages: the latent is ``image_size / 2 ** n_down`` per side."""
+    skip_connections: bool = True
+    """U-Net skips from the encoder (frame t) to the decoder at every scale. Not in the paper
+    (its decoder starts from the 16 x 16 latent alone); with a few thousand CPU steps they give
+    the folds their sharpness. The ``paper`` preset turns them off."""
+    blend_output: bool = True
+    """Blend the final RGB with the background image by a predicted alpha, so the body off the
+    garment is exact instead of a learned copy. Not in the paper; off in the ``paper`` preset."""
     decoder_features: int = 16
     """Channels of the garment features U, of the background features and of the refinement
     blocks."""
@@ -64,8 +73,9 @@ class RendererConfig(PlainConfig):
     """Weight of discriminator feature matching."""
     w_gan: float = 0.5
     """Weight of the generator's GAN loss."""
-    lr_g: float = 1e-4
-    """Adam learning rate of the network and the neural texture."""
+    lr_g: float = 2e-4
+    """Adam learning rate of the network and the neural texture (1e-4 in the paper and its
+    preset; 2e-4 for the few thousand steps a CPU run can afford, as the baselines)."""
     lr_d: float = 3e-4
     """Adam learning rate of the discriminator."""
     betas: tuple[float, float] = (0.5, 0.999)
@@ -159,6 +169,10 @@ PRESETS: dict[str, RendererConfig] = {
     "cpu": RendererConfig(),
     "paper": RendererConfig(
         image_size=512,
+        texture_sizes=(512, 256, 128, 64),
+        skip_connections=False,
+        blend_output=False,
+        lr_g=1e-4,
         base_width=32,
         max_width=512,
         n_down=5,

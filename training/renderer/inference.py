@@ -163,9 +163,10 @@ class NeuralRenderer:
             motion = chw(interpolate(frag, self.faces, fd.features, "float32")).to(self.device)
         return self.net.input_features(uv, motion, mask)
 
-    def _encode(self, fd: _FrameData, camera: Camera) -> torch.Tensor:
+    def _encode(self, fd: _FrameData, camera: Camera) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """(latent, encoder skips) of a frame; only the latent is kept for the next frame."""
         self.encodes += 1
-        return self.net.encode(self.features(fd, camera))
+        return self.net.encode_with_skips(self.features(fd, camera))
 
     def _background(self, background: np.ndarray, camera: Camera, box: CropBox) -> torch.Tensor:
         bg = np.asarray(background)
@@ -181,9 +182,10 @@ class NeuralRenderer:
         return torch.from_numpy(np.ascontiguousarray(crop.transpose(2, 0, 1)))[None].to(self.device)
 
     def _compose(
-        self, camera: Camera, frame: FrameState, box: CropBox, z: torch.Tensor, z_prev
+        self, camera: Camera, frame: FrameState, box: CropBox, z: torch.Tensor, z_prev, skips
     ) -> np.ndarray:
-        rgb, _ = self.net.decode(z, z_prev, self._background(frame.background, camera, box))
+        background = self._background(frame.background, camera, box)
+        rgb, _ = self.net.decode(z, z_prev, background, skips)
         img = (rgb[0].clamp(0, 1).permute(1, 2, 0).float().cpu().numpy() * 255 + 0.5).astype(
             np.uint8
         )
@@ -215,9 +217,9 @@ class NeuralRenderer:
         if box is None:
             return np.array(frame.background, np.uint8, copy=True)
         cam = crop_camera(camera, box.x0, box.y0, box.width, box.height)
-        z = self._encode(self._frame_data(frame), cam)
-        z_prev = z if previous is None else self._encode(self._frame_data(previous), cam)
-        return self._compose(camera, frame, box, z, z_prev)
+        z, skips = self._encode(self._frame_data(frame), cam)
+        z_prev = z if previous is None else self._encode(self._frame_data(previous), cam)[0]
+        return self._compose(camera, frame, box, z, z_prev, skips)
 
     @torch.no_grad()
     def render(
@@ -236,12 +238,12 @@ class NeuralRenderer:
             return np.array(frame.background, np.uint8, copy=True)
         cam = crop_camera(camera, box.x0, box.y0, box.width, box.height)
         key = self._key(camera, box)
-        z = self._encode(self._frame_data(frame), cam)
+        z, skips = self._encode(self._frame_data(frame), cam)
         if previous is None or previous is frame:
             z_prev = z
         elif self._last is not None and self._last[0] == key and self._last[1] is previous:
             z_prev = self._last[2]
         else:
-            z_prev = self._encode(self._frame_data(previous), cam)
+            z_prev = self._encode(self._frame_data(previous), cam)[0]
         self._last = (key, frame, z)
-        return self._compose(camera, frame, box, z, z_prev)
+        return self._compose(camera, frame, box, z, z_prev, skips)

@@ -80,26 +80,38 @@ def _act() -> nn.Module:
 
 
 class Encoder(nn.Module):
-    """Input features (B, Cin, H, W) -> latent (B, Cz, H / 2**n, W / 2**n); zero in, zero out."""
+    """Input features (B, Cin, H, W) -> latent (B, Cz, H / 2**n, W / 2**n); zero in, zero out.
+
+    ``forward(x, skips=True)`` also returns the activations at every finer scale (full
+    resolution first), for the decoder's skip connections.
+    """
 
     def __init__(self, in_channels: int, base: int, max_width: int, n_down: int):
         super().__init__()
-        layers: list[nn.Module] = [nn.Conv2d(in_channels, base, 3, 1, 1, bias=False), _act()]
+        self.stem = nn.Sequential(nn.Conv2d(in_channels, base, 3, 1, 1, bias=False), _act())
+        downs = []
         w = base
         for _ in range(n_down):
             w2 = min(w * 2, max_width)
-            layers += [
-                nn.Conv2d(w, w2, 4, 2, 1, bias=False),
-                _act(),
-                nn.Conv2d(w2, w2, 3, 1, 1, bias=False),
-                _act(),
-            ]
+            downs.append(
+                nn.Sequential(
+                    nn.Conv2d(w, w2, 4, 2, 1, bias=False),
+                    _act(),
+                    nn.Conv2d(w2, w2, 3, 1, 1, bias=False),
+                    _act(),
+                )
+            )
             w = w2
-        self.net = nn.Sequential(*layers)
+        self.downs = nn.ModuleList(downs)
         self.out_channels = w
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.net(x)
+    def forward(self, x: torch.Tensor, skips: bool = False):
+        x = self.stem(x)
+        feats = [x]
+        for down in self.downs:
+            x = down(x)
+            feats.append(x)
+        return (x, feats[:-1]) if skips else x
 
 
 def positional_norm(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
@@ -142,28 +154,51 @@ class SPADEResBlock(nn.Module):
         return z + dx
 
 
+class UpStage(nn.Module):
+    """x2 transposed conv; with a skip, the encoder's activation at the new scale is
+    concatenated and fused by a 3x3 conv."""
+
+    def __init__(self, w_in: int, w_out: int, skip: bool):
+        super().__init__()
+        self.up = nn.Sequential(nn.ConvTranspose2d(w_in, w_out, 4, 2, 1), _act())
+        self.fuse = nn.Sequential(nn.Conv2d(2 * w_out, w_out, 3, 1, 1), _act()) if skip else None
+
+    def forward(self, z: torch.Tensor, skip: torch.Tensor | None = None) -> torch.Tensor:
+        z = self.up(z)
+        if self.fuse is not None:
+            if skip is None:
+                raise ValueError("this decoder has skip connections: pass the encoder's skips")
+            z = self.fuse(torch.cat([z, skip], 1))
+        return z
+
+
 class Decoder(nn.Module):
     """Latent (B, Cz, h, w) -> garment features U (B, F, H, W) and mask A (B, 1, H, W) in (0, 1).
 
     ``ups[-1]``, ``features_head`` and ``mask_head`` are "the last decoder layers" that
-    background fine-tuning trains.
+    background fine-tuning trains. With ``skips`` every up stage also takes the encoder's
+    activation of frame t at its scale (a U-Net; the paper's decoder has none).
     """
 
-    def __init__(self, latent: int, base: int, n_down: int, features: int):
+    def __init__(self, latent: int, base: int, n_down: int, features: int, skips: bool = False):
         super().__init__()
         widths = [min(base * 2**i, latent) for i in range(n_down)][::-1]  # coarse -> fine
         ups = []
         w = latent
         for w2 in widths:
-            ups.append(nn.Sequential(nn.ConvTranspose2d(w, w2, 4, 2, 1), _act()))
+            ups.append(UpStage(w, w2, skips))
             w = w2
         self.ups = nn.ModuleList(ups)
+        self.skips = skips
         self.features_head = nn.Conv2d(w, features, 3, 1, 1)
         self.mask_head = nn.Conv2d(w, 1, 3, 1, 1)
 
-    def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        for up in self.ups:
-            z = up(z)
+    def forward(
+        self, z: torch.Tensor, skips: list[torch.Tensor] | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """skips: the encoder's activations, full resolution first (needed with ``skips``)."""
+        for i, up in enumerate(self.ups):
+            z = up(z, skips[len(self.ups) - 1 - i] if self.skips and skips is not None else None)
         return self.features_head(z), torch.sigmoid(self.mask_head(z))
 
 
@@ -180,15 +215,28 @@ class ResBlock(nn.Module):
 
 
 class Refiner(nn.Module):
-    """Blended features (B, F, H, W) -> two residual blocks -> RGB (B, 3, H, W) in (0, 1)."""
+    """Blended features (B, F, H, W) -> two residual blocks -> RGB (B, 3, H, W) in (0, 1).
 
-    def __init__(self, features: int):
+    With ``blend_output`` the last layer also predicts an alpha, and the result is
+    ``alpha * rgb + (1 - alpha) * background``: the body off the garment is the background
+    image itself, not a learned copy of it (alpha starts near 0.1).
+    """
+
+    def __init__(self, features: int, blend_output: bool = False):
         super().__init__()
         self.blocks = nn.Sequential(ResBlock(features), ResBlock(features))
-        self.to_rgb = nn.Conv2d(features, 3, 1)
+        self.blend_output = blend_output
+        self.to_rgb = nn.Conv2d(features, 4 if blend_output else 3, 1)
+        if blend_output:
+            with torch.no_grad():
+                self.to_rgb.bias[3] = -2.0
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.sigmoid(self.to_rgb(F.leaky_relu(self.blocks(x), _SLOPE)))
+    def forward(self, x: torch.Tensor, background: torch.Tensor | None = None) -> torch.Tensor:
+        out = self.to_rgb(F.leaky_relu(self.blocks(x), _SLOPE))
+        if not self.blend_output:
+            return torch.sigmoid(out)
+        alpha = torch.sigmoid(out[:, 3:4])
+        return alpha * torch.sigmoid(out[:, :3]) + (1 - alpha) * background
 
 
 class RenderNet(nn.Module):
@@ -208,13 +256,15 @@ class RenderNet(nn.Module):
         )
         cz = self.encoder.out_channels
         self.spade = SPADEResBlock(cz)
-        self.decoder = Decoder(cz, config.base_width, config.n_down, config.decoder_features)
+        self.decoder = Decoder(
+            cz, config.base_width, config.n_down, config.decoder_features, config.skip_connections
+        )
         self.background_net = nn.Sequential(
             nn.Conv2d(3, config.background_width, 3, 1, 1),
             _act(),
             nn.Conv2d(config.background_width, config.decoder_features, 3, 1, 1),
         )
-        self.refiner = Refiner(config.decoder_features)
+        self.refiner = Refiner(config.decoder_features, config.blend_output)
 
     @property
     def stride(self) -> int:
@@ -236,16 +286,27 @@ class RenderNet(nn.Module):
         """Step 2: input features (B, Cin, H, W) -> latent (B, Cz, H / s, W / s), s = stride."""
         return self.encoder(x)
 
+    def encode_with_skips(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Step 2 for the frame being rendered: the latent and the encoder's finer activations
+        (full resolution first; what the decoder's skip connections take)."""
+        return self.encoder(x, skips=True)
+
     def decode(
-        self, z: torch.Tensor, z_prev: torch.Tensor, background: torch.Tensor
+        self,
+        z: torch.Tensor,
+        z_prev: torch.Tensor,
+        background: torch.Tensor,
+        skips: list[torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Step 3: latents of t and t-1 and the background (B, 3, H, W) -> (rgb, mask A).
 
-        rgb (B, 3, H, W) in (0, 1); A (B, 1, H, W) the garment mask of the blend.
+        rgb (B, 3, H, W) in (0, 1); A (B, 1, H, W) the garment mask of the blend. ``skips``
+        (frame t's, from :meth:`encode_with_skips`) are needed when the config has
+        ``skip_connections``.
         """
-        u, a = self.decoder(self.spade(z, z_prev))
+        u, a = self.decoder(self.spade(z, z_prev), skips)
         bg = self.background_net(background * 2 - 1)
-        return self.refiner((1 - a) * bg + a * u), a
+        return self.refiner((1 - a) * bg + a * u, background), a
 
     def forward(
         self,
@@ -264,8 +325,8 @@ class RenderNet(nn.Module):
             None if motion is None else torch.cat([motion, motion_prev]),
             torch.cat([mask, mask_prev]),
         )
-        z = self.encode(x)
-        return self.decode(z[:b], z[b:], background)
+        z, skips = self.encode_with_skips(x)
+        return self.decode(z[:b], z[b:], background, [f[:b] for f in skips])
 
 
 def background_finetune_parameters(net: RenderNet) -> list[str]:

@@ -130,6 +130,7 @@ def _architecture(config: RendererConfig) -> dict:
     keep = (
         "texture_sizes", "texture_channels", "motion_channels", "use_motion", "base_width",
         "max_width", "n_down", "decoder_features", "background_width", "disc_width",
+        "skip_connections", "blend_output",
     )  # fmt: skip
     d = config.to_dict()
     return {k: d[k] for k in keep}
@@ -214,8 +215,14 @@ class _Trainer:
         self.net.to(device)
         self.disc.to(device)
         self.g_params = [p for p in self.net.parameters() if p.requires_grad]
-        self.opt_g = torch.optim.Adam(self.g_params, lr=config.lr_g, betas=config.betas)
-        self.opt_d = torch.optim.Adam(self.disc.parameters(), lr=config.lr_d, betas=config.betas)
+        # Fused Adam: several times faster than the per-tensor loop on a large neural texture.
+        fused = device.type in ("cpu", "cuda")
+        self.opt_g = torch.optim.Adam(
+            self.g_params, lr=config.lr_g, betas=tuple(config.betas), fused=fused
+        )
+        self.opt_d = torch.optim.Adam(
+            self.disc.parameters(), lr=config.lr_d, betas=tuple(config.betas), fused=fused
+        )
         self.amp = config.mixed_precision and device.type == "cuda"
         self.scaler_g = torch.amp.GradScaler("cuda", enabled=self.amp)
         self.scaler_d = torch.amp.GradScaler("cuda", enabled=self.amp)

@@ -1,0 +1,107 @@
+"""``dng finetune PROJECT --body-shape k=v ... | --background IMG ...``: adapt a trained renderer."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "finetune",
+        help="fine-tune a project's renderer to a new body shape or a new background",
+        description=(
+            "Body shape: a sub-project PROJECT/finetune/body-NAME/ with the same garment and "
+            "proxy, the proxy simulated on the new body, a new data set and Joint2Coarse; "
+            "every renderer weight is fine-tuned (25%% of the training steps by default). "
+            "Background: the data set recomposited over the images; only the last decoder "
+            "layers, the refinement blocks and the discriminator train; the model goes to "
+            "PROJECT/finetune/background-NAME/. Play the result with dng render "
+            "(--renderer for a background model)."
+        ),
+    )
+    p.add_argument("project", help="project folder with a trained renderer/renderer.pt")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument(
+        "--body-shape",
+        nargs="+",
+        metavar="K=V",
+        help="the new body, e.g. height=1.8 build=0.4 (core.body.shape.BodyShape fields; "
+        "unnamed ones keep the project's values)",
+    )
+    what.add_argument(
+        "--background", nargs="+", metavar="IMG", help="backdrop image(s): PNG, JPEG, ..."
+    )
+    p.add_argument("--steps", type=int, default=None, help="fine-tuning steps (default: see above)")
+    p.add_argument("--name", default="default", help="name of the result folder (default: default)")
+    p.add_argument(
+        "--renderer", default=None, metavar="MODEL.pt", help="start from this model instead"
+    )
+    p.add_argument(
+        "--no-joint2coarse",
+        action="store_true",
+        help="body shape: do not train Joint2Coarse on the new body (the sub-project then has "
+        "no proxy predictor of its own)",
+    )
+    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    import torch
+
+    from core.errors import InputError
+    from training import finetune
+
+    if args.steps is not None and args.steps < 1:
+        raise InputError(f"--steps must be >= 1, got {args.steps}")
+    torch.set_num_threads(1)  # one thread is the robust choice beside other work (see pipeline)
+
+    def log(message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    if args.background:
+        result = finetune.finetune_background_images(
+            args.project,
+            args.background,
+            args.name,
+            steps=args.steps,
+            renderer_path=args.renderer,
+            device=args.device,
+            log=log,
+        )
+    else:
+        from pathlib import Path
+
+        from core.body.shape import BodyShape
+        from core.project import Project
+        from training.pipeline import project_config
+
+        if not Path(args.project).is_dir():
+            raise InputError("project folder not found", args.project)
+        base = project_config(Project(args.project)).body
+        shape = BodyShape.parse(args.body_shape, base)
+        result = finetune.finetune_body_shape(
+            args.project,
+            shape,
+            args.name,
+            steps=args.steps,
+            renderer_path=args.renderer,
+            joint2coarse=not args.no_joint2coarse,
+            device=args.device,
+            log=log,
+        )
+    print(f"wrote {result.model_path} ({result.steps} steps)")
+    if result.loss_start is None:
+        print("loss: no step ran (resumed a finished run)")
+    else:
+        print(
+            f"loss: generator {result.loss_start:.4g} -> {result.loss_end:.4g}, "
+            f"L1 {result.l1_start:.4g} -> {result.l1_end:.4g} (first -> last step)"
+        )
+    if args.background:
+        print(f"play it: dng render {args.project} --renderer {result.model_path} --motion ...")
+    else:
+        print(f"play it: dng render {result.out_dir} --motion ...")
+    return 0

@@ -1,0 +1,213 @@
+"""``dng render``, ``dng finetune`` and ``dng bench render`` on the smoke project."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from app.cli import main
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    torch.set_num_threads(1)
+
+
+def run(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+RENDER = ("--frames", 3, "--size", 64)
+
+
+def test_render_gif_png_mp4(smoke_project, tmp_path, capsys):
+    from PIL import Image
+
+    code, out, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", *RENDER, "--out", tmp_path / "a.gif"
+    )
+    assert code == 0, err
+    assert "3 frames, 64x64" in out and "ms" in out
+    with Image.open(tmp_path / "a.gif") as g:
+        assert g.n_frames == 3 and g.size == (64, 64)
+
+    frames = tmp_path / "frames"
+    code, out, err = run(
+        capsys, "render", smoke_project, "--motion", "dance", *RENDER,
+        "--camera", "front", "--side-by-side", "--out", f"{frames}/",
+    )  # fmt: skip
+    assert code == 0, err
+    names = sorted(p.name for p in frames.iterdir())
+    assert names == [f"frame_{i:05d}.png" for i in range(3)]
+    first = np.asarray(Image.open(frames / names[0]))
+    assert first.shape == (64, 128, 3)  # render | simulation
+    assert "simulation" in out
+
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    code, out, err = run(
+        capsys, "render", smoke_project, "--motion", "twirl", *RENDER,
+        "--fps", 12, "--out", tmp_path / "a.mp4",
+    )  # fmt: skip
+    assert code == 0, err
+    reader = imageio_ffmpeg.read_frames(str(tmp_path / "a.mp4"))
+    meta = next(reader)
+    assert meta["size"] == (64, 64) and meta["fps"] == pytest.approx(12)
+    assert sum(1 for _ in reader) == 3
+
+
+def test_render_camera_file(smoke_project, tmp_path, capsys):
+    from PIL import Image
+
+    from core.camera import camera_to_dict, make_camera
+
+    cams = [
+        camera_to_dict(make_camera((0.3 * i, 1.0, 2.5), (0.0, 0.8, 0.0), width=40, height=32))
+        for i in range(2)
+    ]
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps(cams))
+    out_dir = tmp_path / "f"
+    code, _, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", "--frames", 3,
+        "--camera", path, "--out", out_dir,
+    )  # fmt: skip
+    assert code == 0, err
+    frames = sorted(out_dir.iterdir())
+    assert len(frames) == 3
+    assert np.asarray(Image.open(frames[0])).shape == (32, 40, 3)
+    # Frame 2 holds the list's last camera: the same camera as frame 1.
+    single = tmp_path / "one.json"
+    single.write_text(json.dumps(cams[0]))
+    code, _, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", "--frames", 2,
+        "--camera", single, "--size", 20, "--out", tmp_path / "one.gif",
+    )  # fmt: skip
+    assert code == 0, err
+    with Image.open(tmp_path / "one.gif") as g:
+        assert g.size == (20, 16)
+
+
+def test_render_bad_inputs(smoke_project, tmp_path, capsys):
+    missing = tmp_path / "no-project"
+    code, _, err = run(capsys, "render", missing, "--motion", "walk", "--out", tmp_path / "x.gif")
+    assert code == 2 and str(missing) in err
+    model = tmp_path / "nothing.pt"
+    code, _, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", "--renderer", model,
+        "--out", tmp_path / "x.gif",
+    )  # fmt: skip
+    assert code == 2 and str(model) in err and "no trained renderer" in err
+    code, _, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", *RENDER, "--out", tmp_path / "x.avi"
+    )
+    assert code == 2 and "x.avi" in err
+    bad_cam = tmp_path / "cam.json"
+    bad_cam.write_text('{"width": 10}')
+    code, _, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", "--camera", bad_cam,
+        "--out", tmp_path / "x.gif",
+    )  # fmt: skip
+    assert code == 2 and str(bad_cam) in err
+    code, _, err = run(
+        capsys, "render", smoke_project, "--motion", "moonwalk", "--out", tmp_path / "x.gif"
+    )
+    assert code == 2 and "moonwalk" in err
+    assert not (tmp_path / "x.gif").exists() and not (tmp_path / "x.avi").exists()
+
+
+def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_path, capsys):
+    from PIL import Image
+
+    from training.renderer import background_finetune_parameters, load_model
+
+    y, x = np.mgrid[0:40, 0:70]
+    image = np.stack([x * 3 % 256, y * 6 % 256, np.full_like(x, 90)], -1).astype(np.uint8)
+    Image.fromarray(image).save(tmp_path / "backdrop.png")
+    code, out, err = run(
+        capsys, "finetune", smoke_project, "--background", tmp_path / "backdrop.png",
+        "--steps", 2, "--name", "test-bg",
+    )  # fmt: skip
+    assert code == 0, err
+    folder = smoke_project / "finetune" / "background-test-bg"
+    assert str(folder / "renderer.pt") in out
+    assert "loss: generator" in out and "->" in out
+    assert (folder / "backdrop-0.png").is_file()
+    _, parent, parent_d = load_model(smoke_project / "renderer" / "renderer.pt")
+    _, tuned, tuned_d = load_model(folder / "renderer.pt")
+    allowed = set(background_finetune_parameters(parent))
+    before, after = parent.state_dict(), tuned.state_dict()
+    changed = {k for k in before if not torch.equal(before[k], after[k])}
+    assert changed and changed <= allowed, changed - allowed
+    d0, d1 = parent_d.state_dict(), tuned_d.state_dict()
+    assert any(not torch.equal(d0[k], d1[k]) for k in d0)  # the discriminator trains too
+
+    # Playing it: the backdrop beside the model is picked up.
+    code, out, err = run(
+        capsys, "render", smoke_project, "--motion", "walk", "--frames", 2, "--size", 48,
+        "--renderer", folder / "renderer.pt", "--out", tmp_path / "bg.gif",
+    )  # fmt: skip
+    assert code == 0, err
+    with Image.open(tmp_path / "bg.gif") as g:
+        corner = np.asarray(g.convert("RGB"))[0, 0]
+    assert abs(int(corner[2]) - 90) < 30  # the backdrop's blue channel, not the studio grey
+
+
+def test_finetune_bad_inputs(smoke_project, tmp_path, capsys):
+    bad = tmp_path / "broken.png"
+    bad.write_text("not an image")
+    code, _, err = run(capsys, "finetune", smoke_project, "--background", bad, "--steps", 1)
+    assert code == 2 and str(bad) in err
+    gone = tmp_path / "gone.jpg"
+    code, _, err = run(capsys, "finetune", smoke_project, "--background", gone)
+    assert code == 2 and str(gone) in err
+    missing = tmp_path / "no-project"
+    code, _, err = run(capsys, "finetune", missing, "--body-shape", "height=1.8")
+    assert code == 2 and str(missing) in err
+    code, _, err = run(capsys, "finetune", smoke_project, "--body-shape", "neck=3")
+    assert code == 2 and "neck" in err
+    model = tmp_path / "none.pt"
+    code, _, err = run(
+        capsys, "finetune", smoke_project, "--body-shape", "height=1.8", "--renderer", model
+    )
+    assert code == 2 and str(model) in err
+
+
+@pytest.mark.slow
+def test_finetune_body_shape(smoke_project, tmp_path, capsys):
+    from core.project import Project
+    from training.pipeline import project_config
+
+    code, out, err = run(
+        capsys, "finetune", smoke_project, "--body-shape", "height=1.8", "build=0.4",
+        "--steps", 2, "--name", "test-tall",
+    )  # fmt: skip
+    assert code == 0, err
+    sub = smoke_project / "finetune" / "body-test-tall"
+    assert (sub / "renderer" / "renderer.pt").is_file() and "loss: generator" in out
+    config = project_config(Project(sub))
+    assert config.body.height == pytest.approx(1.8) and config.body.build == pytest.approx(0.4)
+    for name in ("proxy/proxy.obj", "proxy/seams.npz", "garment/target.obj"):
+        assert (sub / name).read_bytes() == (smoke_project / name).read_bytes()
+    assert (sub / "dataset" / "samples.json").is_file()
+    code, _, err = run(
+        capsys, "render", sub, "--motion", "walk", *RENDER, "--out", tmp_path / "tall.gif"
+    )
+    assert code == 0, err
+
+
+def test_bench_render(tmp_path, capsys):
+    code, out, err = run(
+        capsys, "bench", "render", "--sizes", 32, "--threads", 1, "--frames", 1,
+        "--presets", "tiny", "--out", tmp_path, "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    table = json.loads(out)
+    (row,) = table["rows"]
+    assert row["size"] == 32 and row["fps"] > 0 and row["frame_ms"] > row["network_ms"] > 0
+    assert len(table["load_average_before"]) == 3
+    assert (tmp_path / "render.json").is_file() and (tmp_path / "render.png").is_file()

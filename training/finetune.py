@@ -1,0 +1,426 @@
+"""Fine-tuning a project's trained renderer to a new body shape or a new background.
+
+- **Body shape** (:func:`finetune_body_shape`): a sub-project ``PROJECT/finetune/body-NAME/``
+  with the parent's pipeline settings but the new :class:`core.body.shape.BodyShape`, and the
+  parent's garment and proxy copied unchanged (so the UV atlas, hence the neural texture, stays
+  valid). The pipeline's own stages make the training motion on the new body, simulate the
+  proxy, drive the target, render the data set and train Joint2Coarse there (so the sub-project
+  plays like any project); then every renderer weight is fine-tuned from the parent's model
+  (:func:`training.renderer.train.finetune_body`, 25% of the steps by default) into
+  ``body-NAME/renderer/renderer.pt``.
+- **Background** (:func:`finetune_background_images`): the project's data set with every
+  sample's background and ground truth recomposited over the given images
+  (:class:`BackdropDataset`); only the last decoder layers, the refinement blocks and the
+  discriminator train (:func:`training.renderer.train.finetune_background`). Output:
+  ``PROJECT/finetune/background-NAME/renderer.pt`` with the images beside it
+  (``backdrop-K.png``) for playback.
+
+How pixels are separated from the empty studio background: the data set's images are rendered
+(:mod:`core.shading`) over one known clear colour (``ShadingConfig.background``), averaged in
+linear RGB over ``k x k`` ray samples per pixel. Rasterizing the same surfaces from the same
+camera at the same ``k x k`` samples gives each pixel's exact surface coverage ``c``
+(:func:`surface_coverage`): the body alone for backgrounds, body + detailed garment for ground
+truth. Since ``pixel = mean(surface samples) + (1 - c) * clear`` in linear RGB, replacing the
+clear colour by a new backdrop is ``pixel + (1 - c) * (backdrop - clear)`` (:func:`recomposite`):
+exact up to 8-bit rounding, with antialiased edges kept, no colour keying.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputError
+from core.fileio import atomic_path, write_json
+
+#: Sub-folder of a project that holds fine-tuned models.
+FINETUNE_DIR = "finetune"
+#: Parent folders copied into a body sub-project unchanged (the UV atlas must not change).
+COPIED_STAGES = ("garment", "proxy")
+
+Log = Callable[[str], None]
+
+
+def _quiet(_: str) -> None:
+    pass
+
+
+# ------------------------------------------------------------------------------ compositing
+
+
+def surface_coverage(
+    vertices: np.ndarray, faces: np.ndarray, camera, supersample: int
+) -> np.ndarray:
+    """Fraction of each pixel's ``k x k`` ray samples that hit the mesh: (H, W) float32.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float; faces : (F, 3) int
+    camera : core.camera.Camera
+    supersample : k, as in :class:`core.shading.ShadingConfig` (must match the render's)
+    """
+    from core.camera import resize_camera
+    from core.raster import MeshScene, RasterConfig
+
+    k = int(supersample)
+    cam = resize_camera(camera, k * camera.width, k * camera.height)
+    frags = MeshScene(vertices, faces).rasterize(cam, RasterConfig())
+    hit = (frags.face_id >= 0).astype(np.float32)
+    return hit.reshape(camera.height, k, camera.width, k).mean(axis=(1, 3), dtype=np.float32)
+
+
+def recomposite(
+    image: np.ndarray,
+    coverage: np.ndarray,
+    clear: Sequence[float],
+    backdrop: np.ndarray,
+) -> np.ndarray:
+    """Swap the clear colour behind a render for a backdrop: (H, W, 3) uint8.
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8, sRGB, rendered over the flat colour ``clear``
+    coverage : (H, W) float in [0, 1], surface coverage of each pixel (:func:`surface_coverage`)
+    clear : 3 floats, sRGB in [0, 1] (``ShadingConfig.background``)
+    backdrop : (H, W, 3) uint8, sRGB
+
+    Works in linear RGB, where the render averaged its samples; pixels with no coverage are
+    the backdrop exactly.
+    """
+    from core.shading import linear_to_srgb, srgb_to_linear, to_uint8
+
+    image = np.asarray(image)
+    backdrop = np.asarray(backdrop)
+    if image.shape != backdrop.shape or image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"image {image.shape} and backdrop {backdrop.shape} must be (H, W, 3)")
+    c = np.clip(np.asarray(coverage, np.float32), 0.0, 1.0)[..., None]
+    lin = srgb_to_linear(image.astype(np.float32) / 255)
+    back = srgb_to_linear(backdrop.astype(np.float32) / 255)
+    lin = lin + (1.0 - c) * (back - srgb_to_linear(np.asarray(clear, np.float32)))
+    out = to_uint8(linear_to_srgb(lin))
+    empty = c[..., 0] <= 0
+    out[empty] = backdrop[empty]
+    return out
+
+
+def fit_image(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Scale ``image`` (H, W, 3) uint8 to cover ``width x height`` and crop the centre."""
+    from PIL import Image
+
+    h, w = image.shape[:2]
+    if (w, h) == (width, height):
+        return image
+    s = max(width / w, height / h)
+    nw, nh = max(width, round(w * s)), max(height, round(h * s))
+    big = np.asarray(Image.fromarray(image).resize((nw, nh), Image.Resampling.LANCZOS))
+    x0, y0 = (nw - width) // 2, (nh - height) // 2
+    return np.ascontiguousarray(big[y0 : y0 + height, x0 : x0 + width])
+
+
+def load_image(path: str | os.PathLike) -> np.ndarray:
+    """An image file as (H, W, 3) uint8 RGB; InputError naming the file if it is not one."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("image file not found", path)
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise InputError(f"not a readable image ({exc})", path) from None
+
+
+# ------------------------------------------------------------------------------ background
+
+
+class BackdropDataset:
+    """A project's data set with each sample recomposited over a backdrop image.
+
+    Sample ``i`` uses ``images[i % len(images)]`` (scaled to cover the image, centre-cropped).
+    Its ``background`` (body only) and ``target`` (garment + body) frames are recomposited
+    (:func:`recomposite`) with coverage from rasterizing the posed body, and the body with the
+    simulated detailed target, from the sample's camera; everything else is the base sample.
+
+    Parameters
+    ----------
+    base : training.dataset.GarmentDataset
+    images : sequence of (H, W, 3) uint8
+    shading : core.shading.ShadingConfig the data set was rendered with (the default)
+    """
+
+    def __init__(self, base, images: Sequence[np.ndarray], shading=None):
+        from core.body.mannequin import make_body
+        from core.body.skinning import pose_body
+        from core.motion.load import load_motion
+        from core.project import Project
+        from core.shading import ShadingConfig
+        from core.sim import load_cache
+        from training.pipeline import project_config
+
+        if not images:
+            raise InputError("background fine-tuning needs at least one image")
+        self.base = base
+        self.shading = ShadingConfig() if shading is None else shading
+        root = Path(base.root)
+        index = json.loads((root / "dataset" / "samples.json").read_text())
+        motion_name = index["motion"]
+        config = project_config(Project(root))
+        self.body = make_body(config.body)
+        motion = load_motion(root / "motions" / f"{motion_name}.bvh")
+        self.body_frames = pose_body(self.body, motion)
+        target = root / "sim" / f"{motion_name}-target" / "cache.npz"
+        if not target.is_file():
+            raise InputError("no detailed target cache (the data set's ground truth)", target)
+        self.target = load_cache(target)
+        self.images = [np.asarray(im, np.uint8) for im in images]
+        self._fitted: dict[tuple[int, int, int], np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def backdrop(self, i: int, width: int, height: int) -> np.ndarray:
+        k = i % len(self.images)
+        if (k, width, height) not in self._fitted:
+            self._fitted[(k, width, height)] = fit_image(self.images[k], width, height)
+        return self._fitted[(k, width, height)]
+
+    def __getitem__(self, i: int) -> dict:
+        import torch
+
+        sample = dict(self.base[i])
+        t, _, camera = self.base.samples[i]
+        back = self.backdrop(i, camera.width, camera.height)
+        k = self.shading.supersample
+        clear = self.shading.background
+        bf = self.body.faces
+        gf = self.target.faces
+        faces_all = np.concatenate([gf, bf + self.target.num_vertices])
+        for key in ("background", "target"):
+            frames = []
+            for j, f in enumerate((t - 1, t, t + 1)):
+                body = self.body_frames[f]
+                if key == "background":
+                    cov = surface_coverage(body, bf, camera, k)
+                else:
+                    verts = np.concatenate([self.target.positions[f], body]).astype(np.float32)
+                    cov = surface_coverage(verts, faces_all, camera, k)
+                img = (sample[key][j].numpy().transpose(1, 2, 0) * 255 + 0.5).astype(np.uint8)
+                out = recomposite(img, cov, clear, back)
+                frames.append(out.transpose(2, 0, 1).astype(np.float32) / 255)
+            sample[key] = torch.from_numpy(np.ascontiguousarray(np.stack(frames)))
+        return sample
+
+
+@dataclass(frozen=True)
+class FinetuneResult:
+    """What a fine-tuning run wrote and how the loss moved.
+
+    Attributes
+    ----------
+    model_path : Path of the fine-tuned renderer.pt
+    out_dir : Path of its folder (a sub-project for a body shape)
+    steps : int
+    loss_start, loss_end : generator loss of the first and the last step (None if skipped)
+    l1_start, l1_end : L1 part of it
+    """
+
+    model_path: Path
+    out_dir: Path
+    steps: int
+    loss_start: float | None
+    loss_end: float | None
+    l1_start: float | None
+    l1_end: float | None
+
+
+class _LossTrace:
+    def __init__(self):
+        self.first: dict | None = None
+        self.last: dict | None = None
+
+    def __call__(self, step: int, losses: dict | None) -> None:
+        if losses is None:
+            return
+        if self.first is None:
+            self.first = losses
+        self.last = losses
+
+
+def _result(train_result, out_dir: Path, trace: _LossTrace) -> FinetuneResult:
+    get = lambda d, k: None if d is None else float(d[k])  # noqa: E731
+    return FinetuneResult(
+        model_path=Path(train_result.model_path),
+        out_dir=out_dir,
+        steps=train_result.steps,
+        loss_start=get(trace.first, "loss_g"),
+        loss_end=get(trace.last, "loss_g"),
+        l1_start=get(trace.first, "l1"),
+        l1_end=get(trace.last, "l1"),
+    )
+
+
+def check_name(name: str) -> str:
+    """A fine-tune name must be a plain folder name."""
+    if not name or any(c in name for c in "/\\") or name in (".", "..") or name.startswith("."):
+        raise InputError(f"bad fine-tune name {name!r}: use letters, digits, - and _")
+    return name
+
+
+def parent_renderer(project_root: str | os.PathLike, renderer_path=None) -> Path:
+    """The trained renderer to start from (InputError naming it when missing)."""
+    from training.playback import RENDERER_MODEL
+
+    path = Path(renderer_path) if renderer_path else Path(project_root).joinpath(*RENDERER_MODEL)
+    if not path.is_file():
+        raise InputError("no trained renderer to fine-tune: train one first", path)
+    return path
+
+
+def finetune_background_images(
+    project_root: str | os.PathLike,
+    image_paths: Sequence[str | os.PathLike],
+    name: str = "default",
+    *,
+    steps: int | None = None,
+    renderer_path: str | os.PathLike | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    log: Log = _quiet,
+) -> FinetuneResult:
+    """Fine-tune the project's renderer to the backdrop images (see the module docstring).
+
+    Writes ``PROJECT/finetune/background-NAME/``: ``renderer.pt``, its checkpoint and loss
+    log, ``backdrop-K.png`` (the images as given, for playback) and ``finetune.json``.
+    ``steps`` defaults to the model's ``background_finetune_steps``.
+    """
+    from core.shading import write_png
+    from training.dataset import GarmentDataset
+    from training.renderer.train import finetune_background
+
+    root = Path(project_root)
+    if not root.is_dir():
+        raise InputError("project folder not found", root)
+    images = [load_image(p) for p in image_paths]  # bad files fail before any work
+    if not images:
+        raise InputError("give at least one background image")
+    model = parent_renderer(root, renderer_path)
+    out = root / FINETUNE_DIR / f"background-{check_name(name)}"
+    data = BackdropDataset(GarmentDataset(root), images)
+    log(f"background fine-tuning from {model}: {len(data)} samples over {len(images)} image(s)")
+    trace = _LossTrace()
+    result = finetune_background(
+        model, data, out, steps=steps, device=device, progress=progress, callback=trace
+    )
+    for k, im in enumerate(images):
+        write_png(out / f"backdrop-{k}.png", im)
+    write_json(
+        out / "finetune.json",
+        {
+            "mode": "background",
+            "parent_model": str(model),
+            "images": [str(p) for p in image_paths],
+            "steps": result.steps,
+        },
+    )
+    return _result(result, out, trace)
+
+
+def finetune_body_shape(
+    project_root: str | os.PathLike,
+    shape,
+    name: str = "default",
+    *,
+    steps: int | None = None,
+    renderer_path: str | os.PathLike | None = None,
+    joint2coarse: bool = True,
+    device: str = "cpu",
+    progress: bool = True,
+    log: Log = _quiet,
+) -> FinetuneResult:
+    """Fine-tune the project's renderer to a new body shape (see the module docstring).
+
+    Parameters
+    ----------
+    project_root : the parent project (trained renderer in ``renderer/renderer.pt``)
+    shape : core.body.shape.BodyShape
+    name : the sub-project is ``PROJECT/finetune/body-NAME/``
+    steps : renderer fine-tuning steps (default: 25% of the model's ``steps``)
+    joint2coarse : also train Joint2Coarse on the new body (the sub-project then plays)
+
+    Stages already done in the sub-project with the same inputs are reused.
+    """
+    from core.project import Project
+    from training.dataset import GarmentDataset
+    from training.pipeline import (
+        project_config,
+        stage_dataset,
+        stage_joint2coarse,
+        stage_motions,
+        stage_simulate,
+    )
+    from training.renderer.train import finetune_body
+
+    root = Path(project_root)
+    if not root.is_dir():
+        raise InputError("project folder not found", root)
+    parent = Project(root)
+    config = project_config(parent)
+    model = parent_renderer(root, renderer_path)
+    for stage in COPIED_STAGES:
+        if not parent.stage_dir(stage).is_dir():
+            raise InputError(f"the project has no {stage}/ to reuse", parent.stage_dir(stage))
+    sub_root = root / FINETUNE_DIR / f"body-{check_name(name)}"
+    sub = Project(sub_root)
+    sub_root.mkdir(parents=True, exist_ok=True)
+    # The training motion only: test motions would cost simulations the fine-tune does not use.
+    sub_config = replace(config, body=shape, test_motions=())
+    settings = {k: v for k, v in parent.settings().items() if k != "pipeline"}
+    sub.save_settings(
+        {**settings, "pipeline": sub_config.as_params(), "finetune_of": str(root.resolve())}
+    )
+    for stage in COPIED_STAGES:
+        _copy_tree(parent.stage_dir(stage), sub.stage_dir(stage))
+    train = sub_config.train_motion.name
+    log(f"body-shape sub-project {sub_root}: {asdict(shape)}")
+    stage_motions(sub, sub_config, log)
+    stage_simulate(sub, sub_config, train, "proxy", log)
+    if sub_config.simulate_target:
+        stage_simulate(sub, sub_config, train, "target", log)
+    stage_dataset(sub, sub_config, log)
+    if joint2coarse:
+        stage_joint2coarse(sub, sub_config, log, progress=progress)
+    log(f"renderer fine-tuning from {model}")
+    trace = _LossTrace()
+    result = finetune_body(
+        model,
+        GarmentDataset(sub_root),
+        sub_root / "renderer",
+        steps=steps,
+        device=device,
+        progress=progress,
+        callback=trace,
+    )
+    write_json(
+        sub_root / "renderer" / "finetune.json",
+        {"mode": "body", "parent_model": str(model), "body": asdict(shape), "steps": result.steps},
+    )
+    return _result(result, sub_root, trace)
+
+
+def _copy_tree(src: Path, dst: Path) -> None:
+    """Copy a stage folder file by file, each atomically; identical files are left alone."""
+    for f in sorted(src.rglob("*")):
+        if not f.is_file() or ".tmp" in f.name:
+            continue
+        target = dst / f.relative_to(src)
+        if target.is_file() and target.read_bytes() == f.read_bytes():
+            continue
+        with atomic_path(target) as tmp:
+            shutil.copyfile(f, tmp)
