@@ -28,6 +28,7 @@ from core.errors import InputError
 from core.fileio import write_json
 
 RECORD_NAME = "stage.json"
+ATTEMPT_NAME = ".attempt.json"
 SETTINGS_NAME = "project.json"
 
 
@@ -103,10 +104,14 @@ class Project:
         inputs: Iterable[str | os.PathLike],
         work: Callable[[Path], Iterable[str]],
         force: bool = False,
+        resumable: Iterable[str] = (),
     ) -> tuple[StageRecord, bool]:
         """Run ``work(stage_dir) -> output names`` unless the stage is fresh.
 
         Returns the record and whether the work ran. ``work`` must write its files atomically.
+        ``resumable`` names files (training checkpoints) that let an interrupted run of the same
+        stage continue: they are kept when the last attempt had this fingerprint, and deleted
+        when the parameters or inputs changed since (a checkpoint of other settings is stale).
         """
         fp = fingerprint(params, inputs)
         if not force and self.is_fresh(stage, fp):
@@ -114,6 +119,15 @@ class Project:
         out = self.stage_dir(stage)
         out.mkdir(parents=True, exist_ok=True)
         (out / RECORD_NAME).unlink(missing_ok=True)
+        attempt = out / ATTEMPT_NAME
+        try:
+            same = json.loads(attempt.read_text(encoding="utf-8")).get("fingerprint") == fp
+        except (OSError, ValueError, AttributeError):
+            same = False
+        if not same or force:
+            for name in resumable:
+                (out / name).unlink(missing_ok=True)
+        write_json(attempt, {"fingerprint": fp})
         start = time.perf_counter()
         outputs = tuple(str(o) for o in work(out))
         missing = [o for o in outputs if not (out / o).exists()]

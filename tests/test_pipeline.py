@@ -120,6 +120,22 @@ def test_test_sets_come_from_unseen_cameras(smoke):
         GarmentDataset(out, split="walk")
 
 
+def test_train_renderer_cli_with_new_settings(smoke, tmp_path):
+    import shutil
+
+    out, _ = smoke
+    copy = tmp_path / "project"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("finetune", "baselines", "eval"))
+    dng = [sys.executable, "-m", "app.cli", "train", "renderer", str(copy)]
+    r = subprocess.run(dng + ["--steps", "12"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    report = json.loads((copy / "renderer" / "report.json").read_text())
+    assert report["steps"] == 12 and report["resumed_at_step"] == 0  # the old checkpoint is stale
+    assert project_config(Project(copy)).renderer_steps == 12  # saved for dng eval and the GUI
+    r = subprocess.run(dng + ["--preset", "huge"], capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown renderer preset 'huge'" in r.stderr
+
+
 def test_cli_commands_on_the_project(smoke, tmp_path, bvh_dir):
     out, _ = smoke
     dng = [sys.executable, "-m", "app.cli"]

@@ -63,3 +63,31 @@ def test_fingerprint_and_settings_errors(tmp_path):
     (tmp_path / "project.json").write_text("{broken")
     with pytest.raises(InputError, match="project.json: malformed"):
         proj.settings()
+
+
+def test_resumable_files_survive_a_retry_but_not_a_change(tmp_path):
+    from core.project import Project
+
+    proj = Project(tmp_path)
+
+    def crash(out):
+        (out / "ckpt.pt").write_text("half way")
+        raise KeyboardInterrupt
+
+    def finish(out):
+        assert (out / "ckpt.pt").read_text() == "half way"  # resumed from the checkpoint
+        (out / "model.pt").write_text("done")
+        return ["model.pt"]
+
+    with pytest.raises(KeyboardInterrupt):
+        proj.run_stage("train", {"steps": 10}, [], crash, resumable=["ckpt.pt"])
+    proj.run_stage("train", {"steps": 10}, [], finish, resumable=["ckpt.pt"])
+
+    def fresh(out):
+        assert not (out / "ckpt.pt").exists()  # other settings: the stale checkpoint is gone
+        (out / "model.pt").write_text("done again")
+        return ["model.pt"]
+
+    (proj.path("train", "ckpt.pt")).write_text("from 10 steps")
+    _, ran = proj.run_stage("train", {"steps": 20}, [], fresh, resumable=["ckpt.pt"])
+    assert ran and proj.path("train", "model.pt").read_text() == "done again"

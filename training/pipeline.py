@@ -513,7 +513,13 @@ def stage_joint2coarse(
         write_json(out / "report.json", report)
         return [*outputs, "report.json"]
 
-    project.run_stage("joint2coarse", params, [train_cache, *test_caches, *motions], work)
+    project.run_stage(
+        "joint2coarse",
+        params,
+        [train_cache, *test_caches, *motions],
+        work,
+        resumable=["joint2coarse_train.pt"],
+    )
     import json
 
     return json.loads(project.path("joint2coarse", "report.json").read_text())
@@ -654,7 +660,11 @@ def stage_renderer(
         return [result.model_path.name, result.log_path.name, "loss.png", "report.json", *previews]
 
     project.run_stage(
-        "renderer", params, [index, source_file, project.path("proxy", "proxy.obj")], work
+        "renderer",
+        params,
+        [index, source_file, project.path("proxy", "proxy.obj")],
+        work,
+        resumable=["renderer_train.pt"],
     )
     import json
 
@@ -756,7 +766,7 @@ def stage_baseline(
         return [result.model_path.name, result.log_path.name, "loss.png", "report.json"]
 
     inputs = [project.path("dataset", "samples.json"), source_file]
-    project.run_stage(stage, params, inputs, work)
+    project.run_stage(stage, params, inputs, work, resumable=[f"{kind}_train.pt"])
     import json
 
     return json.loads(project.path(stage, "report.json").read_text())

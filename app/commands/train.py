@@ -1,4 +1,4 @@
-"""``dng train joint2coarse PROJECT``: train a project's networks."""
+"""``dng train joint2coarse|renderer|baselines PROJECT``: train a project's networks."""
 
 from __future__ import annotations
 
@@ -22,6 +22,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     j.add_argument("project", help="project folder (made by dng demo)")
     j.add_argument("--preset", help="Joint2Coarse preset (paper, fast); default: the project's")
     j.set_defaults(handler=run_joint2coarse)
+    r = what.add_parser(
+        "renderer",
+        help="the neural renderer, on the project's data set",
+        description=(
+            "Train the neural renderer on PROJECT/dataset (resuming an interrupted run): "
+            "PROJECT/renderer/ gets renderer.pt, the CSV loss log, loss.png (loss curves), "
+            "previews/ (prediction | ground truth) and report.json."
+        ),
+    )
+    r.add_argument("project", help="project folder (made by dng demo)")
+    r.add_argument("--preset", help="renderer preset (tiny, cpu, paper); default: the project's")
+    r.add_argument("--steps", type=int, help="optimisation steps (default: the preset's)")
+    r.add_argument(
+        "--source",
+        choices=("sim", "joint2coarse"),
+        help="proxy to train on: simulated (default) or Joint2Coarse's prediction",
+    )
+    r.set_defaults(handler=run_renderer)
+    b = what.add_parser(
+        "baselines",
+        help="Pix2Pix and Deferred Neural Rendering on the same data set (for dng eval)",
+        description=(
+            "Train the comparison baselines on PROJECT/dataset with as many steps as the "
+            "renderer: PROJECT/baselines/KIND/."
+        ),
+    )
+    b.add_argument("project", help="project folder (made by dng demo)")
+    b.add_argument("--kinds", nargs="+", help="baselines to train (default: the project's)")
+    b.set_defaults(handler=run_baselines)
 
 
 def run_joint2coarse(args: argparse.Namespace) -> int:
@@ -37,4 +66,59 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
         config = replace(config, joint2coarse_preset=args.preset, joint2coarse_steps=None)
     report = stage_joint2coarse(project, config, print)
     print(json.dumps(report["motions"], indent=1))
+    return 0
+
+
+def _config_with(args: argparse.Namespace):
+    from dataclasses import replace
+
+    from core.project import Project
+    from training.pipeline import project_config
+
+    project = Project(args.project)
+    config = project_config(project)
+    changes = {}
+    if getattr(args, "preset", None):
+        changes["renderer_preset"] = args.preset
+    if getattr(args, "steps", None) is not None:
+        changes["renderer_steps"] = args.steps
+    if getattr(args, "source", None):
+        changes["renderer_source"] = args.source
+    if getattr(args, "kinds", None):
+        changes["baselines"] = tuple(args.kinds)
+    config = replace(config, **changes)
+    from training.pipeline import baseline_config, renderer_config
+
+    renderer_config(config)  # an unknown preset or kind fails here, before the settings change
+    for kind in config.baselines:
+        baseline_config(config, kind)
+    if changes:  # later stages (dng eval, the GUI) read the same settings
+        settings = project.settings()
+        settings["pipeline"] = config.as_params()
+        project.save_settings(settings)
+    return project, config
+
+
+def run_renderer(args: argparse.Namespace) -> int:
+    import json
+
+    from training.pipeline import stage_renderer
+
+    project, config = _config_with(args)
+    report = stage_renderer(project, config, print)
+    keep = ("steps", "seconds_per_step", "skipped_steps", "perceptual", "first", "last")
+    print(json.dumps({k: report[k] for k in keep}, indent=1))
+    print(f"model: {project.path('renderer', 'renderer.pt')}")
+    return 0
+
+
+def run_baselines(args: argparse.Namespace) -> int:
+    import json
+
+    from training.pipeline import stage_baselines
+
+    project, config = _config_with(args)
+    reports = stage_baselines(project, config, print)
+    print(json.dumps({k: {"steps": r["steps"], "seconds_per_step": r["seconds_per_step"]}
+                      for k, r in reports.items()}, indent=1))  # fmt: skip
     return 0

@@ -1,0 +1,111 @@
+"""Evaluation: frame shifting, scoring methods on the same samples, FID on or honestly off."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from training.baselines import synthetic_batch
+from training.evaluate import (
+    EvalConfig,
+    evaluate_motion,
+    fid_scores,
+    garment_region,
+    next_frame_batch,
+)
+
+
+class _Samples:
+    """A map data set over the samples of a synthetic batch."""
+
+    def __init__(self, n: int = 5, size: int = 32):
+        self.batch = synthetic_batch(size, batch=n, seed=3)
+
+    def __len__(self) -> int:
+        return len(self.batch["target"])
+
+    def __getitem__(self, i: int) -> dict:
+        return {k: v[i] for k, v in self.batch.items()}
+
+
+class _Oracle:
+    """Renders the ground truth of the frame at index 1."""
+
+    def render(self, batch: dict) -> torch.Tensor:
+        return batch["target"][:, 1].clone()
+
+
+class _Grey:
+    def render(self, batch: dict) -> torch.Tensor:
+        return torch.full_like(batch["target"][:, 1], 0.5)
+
+
+def test_next_frame_batch_moves_one_frame_on():
+    b = synthetic_batch(8, batch=2)
+    n = next_frame_batch(b)
+    for k, v in b.items():
+        assert n[k].shape == v.shape
+        assert torch.equal(n[k][:, 0], v[:, 1]) and torch.equal(n[k][:, 1], v[:, 2])
+    region = garment_region(b)
+    assert region.shape == (2, 1, 8, 8) and set(region.unique().tolist()) <= {0.0, 1.0}
+
+
+def test_methods_are_scored_on_the_same_samples():
+    data = _Samples()
+    cfg = EvalConfig(batch_size=2, sheet_samples=3)
+    results, gt_tiles = evaluate_motion({"oracle": (_Oracle(), data), "grey": (_Grey(), data)}, cfg)
+    assert len(gt_tiles) == 3 and gt_tiles[0].shape == (32, 32, 3)
+    oracle, grey = results["oracle"].metrics.summary(), results["grey"].metrics.summary()
+    # Two scored frames (t, t+1) per sample, one flicker pair per sample.
+    assert oracle["mse"]["n"] == 2 * len(data) and oracle["flicker"]["n"] == len(data)
+    assert oracle["mse"]["mean"] == 0.0 and oracle["ssim"]["mean"] == pytest.approx(1.0)
+    assert oracle["flicker"]["mean"] == 0.0
+    assert grey["mse"]["mean"] > 0.01 and grey["ssim"]["mean"] < 0.5
+    assert grey["flicker"]["mean"] > 0.0  # a frozen output flickers against a moving truth
+    assert len(results["grey"].tiles) == 3 and len(results["grey"].pairs) == len(data)
+    json.dumps(oracle)  # JSON-ready (no NaN, no inf)
+
+
+def test_fid_needs_weights_and_uses_them(tmp_path):
+    from training.inception import InceptionV3
+
+    data = _Samples(n=6)
+    results, _ = evaluate_motion(
+        {"grey": (_Grey(), data)}, EvalConfig(batch_size=3, sheet_samples=1)
+    )
+    off = fid_scores(results["grey"], EvalConfig())
+    assert off["fid"]["value"] is None and "unavailable" in off["fid"]["status"]
+    assert off["video_fid"]["value"] is None
+    torch.manual_seed(0)
+    weights = tmp_path / "inception_small.pth"
+    torch.save(InceptionV3(width_scale=0.125).state_dict(), weights)
+    cfg = EvalConfig(inception_path=str(weights), inception_width_scale=0.125)
+    on = fid_scores(results["grey"], cfg)
+    assert on["fid"]["value"] is not None and on["fid"]["value"] > 0
+    assert on["video_fid"]["value"] is not None
+
+
+def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
+    dng = [sys.executable, "-m", "app.cli"]
+    r = subprocess.run(dng + ["eval", str(smoke_project)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    for name in ("ours", "ours (simulated proxy)", "pix2pix", "dnr", "dnr-gan"):
+        assert name in r.stdout
+    report = json.loads((smoke_project / "eval" / "report.json").read_text())
+    assert report["test_motions"] == ["twirl", "cmu-01_01"]
+    for name, m in report["methods"].items():
+        assert m["mse"]["n"] > 0 and 0 <= m["mse"]["mean"] <= 1, name
+        assert 0 < m["ssim"]["mean"] <= 1 and m["flicker"]["n"] > 0, name
+    assert report["mse_ratio_ours_to_dnr"] > 0
+    assert (smoke_project / "eval" / "compare-twirl.png").stat().st_size > 1000
+    missing = tmp_path / "nope.pth"
+    r = subprocess.run(
+        dng + ["eval", str(smoke_project), "--inception", str(missing)],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 2 and "nope.pth" in r.stderr and r.stderr.count("\n") == 1
