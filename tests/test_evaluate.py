@@ -109,3 +109,51 @@ def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
         text=True,
     )
     assert r.returncode == 2 and "nope.pth" in r.stderr and r.stderr.count("\n") == 1
+
+
+def _copy(project, tmp_path):
+    import shutil
+
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy, ignore=shutil.ignore_patterns("finetune", "ablations"))
+    return copy
+
+
+def test_ablations_train_and_join_the_table(smoke_project, tmp_path):
+    from core.project import Project
+    from training.pipeline import ablation_label, project_config
+
+    copy = _copy(smoke_project, tmp_path)
+    dng = [sys.executable, "-m", "app.cli", "eval", str(copy)]
+    r = subprocess.run(
+        dng + ["--ablations", "no-motion", "views-3"], capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr
+    config = project_config(Project(copy))
+    assert config.ablations == ("no-motion", "views-3")  # kept for the next dng eval
+    report = json.loads((copy / "eval" / "report.json").read_text())
+    for name in config.ablations:
+        m = report["methods"][ablation_label(name, config)]
+        assert m["mse"]["n"] == report["methods"]["ours"]["mse"]["n"]
+    views = json.loads((copy / "ablations/views-3/dataset/samples.json").read_text())["samples"]
+    assert {s["view"] for s in views} == {0, 1, 2}
+    assert (copy / "ablations/views-3/proxy").is_symlink()  # shared, not copied
+    r = subprocess.run(dng + ["--ablations", "views-x"], capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown ablation 'views-x'" in r.stderr
+
+
+@pytest.mark.slow
+def test_template_proxy_ablation(smoke_project, tmp_path):
+    from dataclasses import replace
+
+    from core.project import Project
+    from training.pipeline import PRESETS, stage_ablation, stage_eval
+
+    copy = _copy(smoke_project, tmp_path)
+    config = replace(PRESETS["smoke"], ablations=("template-short-skirt",))
+    report = stage_ablation(Project(copy), config, "template-short-skirt")
+    assert report["steps"] == config.renderer_steps
+    sub = copy / "ablations" / "template-short-skirt"
+    assert json.loads((sub / "proxy" / "stage.json").read_text())["params"]["template"]
+    result = stage_eval(Project(copy), config)
+    assert "ours, short-skirt template as proxy" in result["methods"]

@@ -13,6 +13,7 @@ from core.project import RECORD_NAME, Project
 from training.pipeline import (
     PipelineConfig,
     available_test_motions,
+    stage_ablation,
     stage_baselines,
     stage_dataset,
     stage_eval,
@@ -119,7 +120,7 @@ def run_demo(
     sims += [(name, "proxy") for name in tests]
     if config.simulate_target:
         sims += [(name, "target") for name in tests]
-    stages = 4 + len(sims) + (3 + len(tests)) * int(config.simulate_target)
+    stages = 4 + len(sims) + (3 + len(tests) + len(config.ablations)) * int(config.simulate_target)
     progress = _Progress(total=stages)
     log = progress.log
     if len(tests) < len(config.test_motions):
@@ -159,6 +160,10 @@ def run_demo(
             )  # fmt: skip
         finally:
             baselines = wait_for_baselines()
+        for name in config.ablations:
+            progress.stage(
+                f"ablation {name}", lambda n=name: stage_ablation(project, config, n, log)
+            )
         evaluation = progress.stage(
             "evaluation (unseen motions, unseen cameras)", lambda: stage_eval(project, config, log)
         )

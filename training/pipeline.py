@@ -111,6 +111,12 @@ class PipelineConfig:
     baselines: tuple[str, ...] = ("pix2pix", "dnr", "dnr-gan")
     """Baselines trained on the same data set for the comparison (``training.baselines.KINDS``);
     each trains ``renderer_steps`` steps, like ours."""
+    ablations: tuple[str, ...] = ()
+    """Renderer ablations trained and scored beside ours (:data:`ABLATION_KINDS`):
+    ``no-motion``, ``views-N``, ``template-NAME``. Each costs about one renderer training."""
+    proxy_template: str | None = None
+    """A built-in coarse template (``dng garment list``) fitted to the target instead of a
+    derived proxy (the ``template-NAME`` ablation sets it)."""
     inception_path: str = ""
     """InceptionV3 weights (torchvision layout) for FID; empty: FID is reported unavailable."""
     joint2coarse_preset: str = "fast"
@@ -135,8 +141,9 @@ class PipelineConfig:
             data["body"] = BodyShape(**data.get("body", {}))
             data["train_motion"] = MotionSpec(**data["train_motion"])
             data["test_motions"] = tuple(MotionSpec(**m) for m in data.get("test_motions", ()))
-            if "baselines" in data:
-                data["baselines"] = tuple(data["baselines"])
+            for key in ("baselines", "ablations"):
+                if key in data:
+                    data[key] = tuple(data[key])
             if data.get("joint2coarse_steps") is not None:
                 data["joint2coarse_steps"] = tuple(data["joint2coarse_steps"])
             return cls(**data)
@@ -300,11 +307,18 @@ def stage_proxy(project: Project, config: PipelineConfig, log: Log = _quiet) -> 
 
     target = project.path("garment", "target.obj")
     cfg = ProxyConfig(target_verts=config.proxy_verts, texture_size=config.proxy_texture)
-    params = {"proxy": asdict(cfg)}
+    params: dict = {"proxy": asdict(cfg)}
+    if config.proxy_template:
+        params["template"] = config.proxy_template
 
     def work(out: Path) -> list[str]:
         mesh, _ = load_mesh(target)
-        result = derive_proxy(mesh, cfg, path=target)
+        template = None
+        if config.proxy_template:
+            from templates.garments import make_garment
+
+            template = make_garment(config.proxy_template, shape=config.body)
+        result = derive_proxy(mesh, cfg, path=target, template=template)
         save_mesh(out / "proxy.obj", result.proxy)
         save_mesh(out / "positions.obj", result.positions)
         write_npz(out / "seams.npz", seam_map=result.seam_map)
@@ -609,21 +623,28 @@ def _proxy_source_file(project: Project, source: str, motion_name: str) -> Path:
 
 
 def stage_renderer(
-    project: Project, config: PipelineConfig, log: Log = _quiet, progress: bool = True
+    project: Project,
+    config: PipelineConfig,
+    log: Log = _quiet,
+    progress: bool = True,
+    *,
+    stage: str = "renderer",
+    overrides: dict | None = None,
 ) -> dict:
     """Train the neural renderer on the project's data set: ``renderer/``.
 
     Writes ``renderer.pt`` (load with :func:`training.renderer.train.load_model`), the CSV loss
     log, ``loss.png`` (loss curves), ``previews/step_N.png`` (prediction | ground truth) and
     ``report.json`` (steps, seconds per step, first and last logged losses). A run killed half
-    way resumes from its checkpoint.
+    way resumes from its checkpoint. ``stage`` and ``overrides`` (RendererConfig fields) train a
+    variant into another folder (the ablations).
     """
     import torch
 
     from training.dataset import GarmentDataset
     from training.renderer.train import train_renderer
 
-    cfg = renderer_config(config)
+    cfg = renderer_config(config).replace(**(overrides or {}))
     train = config.train_motion.name
     source_file = _proxy_source_file(project, config.renderer_source, train)
     index = project.path("dataset", "samples.json")
@@ -636,7 +657,7 @@ def stage_renderer(
         result = train_renderer(data, out, cfg, progress=progress)
         seconds = time.perf_counter() - start
         rows = read_loss_log(result.log_path)
-        plot_losses(rows, out / "loss.png", f"neural renderer ({config.renderer_preset})")
+        plot_losses(rows, out / "loss.png", f"neural renderer ({config.renderer_preset}, {stage})")
         report = {
             "config": cfg.to_dict(),
             "source": config.renderer_source,
@@ -660,7 +681,7 @@ def stage_renderer(
         return [result.model_path.name, result.log_path.name, "loss.png", "report.json", *previews]
 
     project.run_stage(
-        "renderer",
+        stage,
         params,
         [index, source_file, project.path("proxy", "proxy.obj")],
         work,
@@ -668,7 +689,7 @@ def stage_renderer(
     )
     import json
 
-    return json.loads(project.path("renderer", "report.json").read_text())
+    return json.loads(project.path(stage, "report.json").read_text())
 
 
 def read_loss_log(path: Path) -> list[dict]:
@@ -779,19 +800,112 @@ def stage_baselines(
     return {kind: stage_baseline(project, config, kind, log, progress) for kind in config.baselines}
 
 
-def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Path, str]]:
-    """The methods ``stage_eval`` scores: name -> (model file, proxy source at test time).
+#: Ablations (``PipelineConfig.ablations``): ``no-motion`` (the renderer without motion
+#: features), ``views-N`` (a training set with N cameras per frame instead of
+#: ``views_per_frame``), ``template-NAME`` (a coarse template fitted to the target instead of the
+#: derived proxy; NAME from ``dng garment list``).
+ABLATION_KINDS = ("no-motion", "views-", "template-")
+
+
+def check_ablation(name: str) -> None:
+    ok = name == "no-motion"
+    if name.startswith("views-"):
+        ok = name[6:].isdigit() and int(name[6:]) > 0
+    if name.startswith("template-"):
+        ok = len(name) > 9
+    if not ok:
+        raise InputError(f"unknown ablation {name!r}: use no-motion, views-N or template-NAME")
+
+
+def ablation_project(project: Project, name: str) -> Project:
+    """The folder of an ablation that needs its own stages (``ablations/NAME``)."""
+    return Project(project.root / "ablations" / name)
+
+
+def _link(sub: Project, project: Project, names: list[str]) -> None:
+    """Share the parent's finished stage folders with a sub-project (symbolic links)."""
+    import os
+
+    sub.root.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        link = sub.root / name
+        if link.is_symlink() or link.exists():
+            continue
+        os.symlink(os.path.relpath(project.root / name, sub.root), link)
+
+
+def stage_ablation(
+    project: Project, config: PipelineConfig, name: str, log: Log = _quiet, progress: bool = True
+) -> dict:
+    """Train one ablation of the renderer (see :data:`ABLATION_KINDS`); returns its report.
+
+    ``no-motion`` trains into ``ablations/no-motion/`` from the project's data set. The others
+    are sub-projects under ``ablations/NAME/`` that share the parent's finished folders by
+    symbolic links and run only the stages that differ: ``views-N`` its own training set and
+    renderer; ``template-NAME`` its own proxy (the template fitted to the target), proxy
+    simulations, Joint2Coarse and renderer, on the parent's ground-truth images (the same
+    target motion, so the scores compare).
+    """
+    check_ablation(name)
+    if name == "no-motion":
+        return stage_renderer(
+            project, config, log, progress, stage="ablations/no-motion",
+            overrides={"use_motion": False},
+        )  # fmt: skip
+    sub = ablation_project(project, name)
+    if name.startswith("views-"):
+        views = int(name[6:])
+        _link(sub, project, ["motions", "garment", "proxy", "sim", "joint2coarse"])
+        sub_config = replace(config, views_per_frame=views)
+        sub.save_settings({"ablation": name, "pipeline": sub_config.as_params()})
+        stage_dataset(sub, sub_config, log)
+        return stage_renderer(sub, sub_config, log, progress)
+    template = name[len("template-") :]
+    _link(sub, project, ["motions", "garment", "dataset", "testset"])
+    sub_config = replace(config, proxy_template=template)
+    sub.save_settings({"ablation": name, "pipeline": sub_config.as_params()})
+    stage_proxy(sub, sub_config, log)
+    for m in (config.train_motion, *available_test_motions(config)):
+        stage_simulate(sub, sub_config, m.name, "proxy", log)
+    stage_joint2coarse(sub, sub_config, log, progress)
+    return stage_renderer(sub, sub_config, log, progress)
+
+
+def ablation_label(name: str, config: PipelineConfig) -> str:
+    """The ablation's row name in the comparison table."""
+    if name == "no-motion":
+        return "ours, no motion features"
+    if name.startswith("views-"):
+        return f"ours, {name[6:]} views per frame (not {config.views_per_frame})"
+    return f"ours, {name[len('template-') :]} template as proxy"
+
+
+def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Path, str, Path]]:
+    """The methods ``stage_eval`` scores: name -> (model file, proxy source at test time,
+    project folder whose proxy and test sets it renders).
 
     ``ours`` renders Joint2Coarse's proxy (no simulation at test time, the method's claim);
     ``ours (simulated proxy)`` renders the simulated proxy of the same motion, which separates
-    the renderer's error from Joint2Coarse's. Baselines render Joint2Coarse's proxy too.
+    the renderer's error from Joint2Coarse's. Baselines and ablations render Joint2Coarse's
+    proxy too.
     """
+    root = project.root
     methods = {
-        "ours": (project.path("renderer", "renderer.pt"), "joint2coarse"),
-        "ours (simulated proxy)": (project.path("renderer", "renderer.pt"), "sim"),
+        "ours": (project.path("renderer", "renderer.pt"), "joint2coarse", root),
+        "ours (simulated proxy)": (project.path("renderer", "renderer.pt"), "sim", root),
     }
     for kind in config.baselines:
-        methods[kind] = (project.path(f"baselines/{kind}", f"{kind}.pt"), "joint2coarse")
+        methods[kind] = (project.path(f"baselines/{kind}", f"{kind}.pt"), "joint2coarse", root)
+    for name in config.ablations:
+        check_ablation(name)
+        if name == "no-motion":
+            model, data = project.path("ablations/no-motion", "renderer.pt"), root
+        elif name.startswith("views-"):
+            model, data = ablation_project(project, name).path("renderer", "renderer.pt"), root
+        else:
+            sub = ablation_project(project, name)
+            model, data = sub.path("renderer", "renderer.pt"), sub.root
+        methods[ablation_label(name, config)] = (model, "joint2coarse", data)
     return methods
 
 
@@ -809,34 +923,47 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = _quiet) -> d
     tests = [m.name for m in available_test_motions(config)]
     methods = eval_methods(project, config)
     eval_cfg = EvalConfig(inception_path=config.inception_path)
-    inputs = [path for path, _ in methods.values()]
+    inputs = [path for path, _, _ in methods.values()]
     for name in tests:
-        inputs += [
-            project.path(f"testset/{name}", "samples.json"),
-            project.path("joint2coarse", f"pred-{name}.npz"),
-            project.path(f"sim/{name}-proxy", "cache.npz"),
-        ]
-    params = {"eval": eval_cfg.to_dict(), "methods": {k: v[1] for k, v in methods.items()}}
+        for root in {r for _, _, r in methods.values()}:
+            data = Project(root)
+            inputs += [
+                data.path(f"testset/{name}", "samples.json"),
+                data.path("joint2coarse", f"pred-{name}.npz"),
+                data.path(f"sim/{name}-proxy", "cache.npz"),
+            ]
+    params = {
+        "eval": eval_cfg.to_dict(),
+        "methods": {k: [v[1], str(v[2])] for k, v in methods.items()},
+    }
 
     def work(out: Path) -> list[str]:
         torch.set_num_threads(config.torch_threads)
-        models = {name: load_for_evaluation(path) for name, (path, _) in methods.items()}
+        models = {name: load_for_evaluation(path) for name, (path, _, _) in methods.items()}
         totals = {name: FrameMetrics() for name in methods}
         report: dict = {"methods": {}, "motions": {}, "test_motions": tests}
         outputs = []
         for motion in tests:
             data = {
-                src: GarmentDataset(project.root, source=src, split=motion)
-                for src in {s for _, s in methods.values()}
+                (root, src): GarmentDataset(root, source=src, split=motion)
+                for _, src, root in methods.values()
             }
             log(
-                f"  evaluating {motion}: {len(data['joint2coarse'])} samples x {len(methods)} methods"
+                f"  evaluating {motion}: {len(data[(project.root, 'joint2coarse')])} samples x "
+                f"{len(methods)} methods"
             )
             results, gt_tiles = evaluate_motion(
-                {name: (models[name], data[src]) for name, (_, src) in methods.items()}, eval_cfg
+                {
+                    name: (models[name], data[(root, src)])
+                    for name, (_, src, root) in methods.items()
+                },
+                eval_cfg,
             )
             report["motions"][motion] = {
-                name: {"samples": len(data[methods[name][1]]), **r.metrics.summary()}
+                name: {
+                    "samples": len(data[(methods[name][2], methods[name][1])]),
+                    **r.metrics.summary(),
+                }
                 for name, r in results.items()
             }
             for name, r in results.items():

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 #: Known benches, in the order ``dng bench --help`` lists them.
-BENCHES = ("proxy", "sim", "raster", "render", "trade")
+BENCHES = ("proxy", "sim", "raster", "render", "trade", "all")
 #: Where benches write their JSON tables and PNG plots unless told otherwise.
 DEFAULT_OUT = "out/bench"
 

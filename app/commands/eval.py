@@ -25,6 +25,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="WEIGHTS.pth",
         help="torchvision InceptionV3 weights (inception_v3_google-*.pth) for FID",
     )
+    p.add_argument(
+        "--ablations",
+        nargs="+",
+        metavar="NAME",
+        help="train and score ablations too: no-motion, views-N (N cameras per frame), "
+        "template-NAME (a coarse template as proxy, e.g. template-long-skirt); each costs about "
+        "one renderer training",
+    )
     p.add_argument("--json", action="store_true", help="print the whole report as JSON")
     p.set_defaults(handler=run)
 
@@ -37,8 +45,10 @@ def run(args: argparse.Namespace) -> int:
     from core.errors import InputError
     from core.project import Project
     from training.pipeline import (
+        check_ablation,
         available_test_motions,
         project_config,
+        stage_ablation,
         stage_eval,
         stage_simulate,
         stage_testset,
@@ -51,19 +61,28 @@ def run(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise InputError("Inception weights file not found", path)
         config = replace(config, inception_path=str(path.resolve()))
+    if args.ablations:
+        config = replace(config, ablations=tuple(args.ablations))
+        for name in config.ablations:
+            check_ablation(name)
+        settings = project.settings()
+        settings["pipeline"] = config.as_params()
+        project.save_settings(settings)  # the next dng eval (and the demo) keep them
     for m in available_test_motions(config):
         stage_simulate(project, config, m.name, "target", print)
         stage_testset(project, config, m.name, print)
+    for name in config.ablations:
+        stage_ablation(project, config, name, print)
     report = stage_eval(project, config, print)
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
     print(
-        f"{'method':24s} {'MSE':>16s} {'PSNR':>7s} {'SSIM':>7s} {'MSE garment':>12s} {'flicker':>8s}"
+        f"{'method':44s} {'MSE':>16s} {'PSNR':>7s} {'SSIM':>7s} {'MSE garment':>12s} {'flicker':>8s}"
     )
     for name, m in report["methods"].items():
         print(
-            f"{name:24s} {m['mse']['mean']:.4f} ± {m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} "
+            f"{name:44s} {m['mse']['mean']:.4f} ± {m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} "
             f"{m['ssim']['mean']:7.4f} {m['mse_masked']['mean']:12.4f} {m['flicker']['mean']:8.4f}"
         )
     if "mse_ratio_ours_to_dnr" in report:
