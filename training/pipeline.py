@@ -199,6 +199,7 @@ PRESETS: dict[str, PipelineConfig] = {
         frame_stride=1,
         image_size=512,
         renderer_preset="paper",
+        ablations=("no-motion", "views-5", "template-long-skirt"),
         joint2coarse_preset="paper",
     ),
 }
