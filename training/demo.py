@@ -24,6 +24,7 @@ from training.pipeline import (
     stage_renderer,
     stage_simulate,
     stage_testset,
+    stage_videos,
 )
 
 
@@ -120,7 +121,7 @@ def run_demo(
     sims += [(name, "proxy") for name in tests]
     if config.simulate_target:
         sims += [(name, "target") for name in tests]
-    stages = 4 + len(sims) + (3 + len(tests) + len(config.ablations)) * int(config.simulate_target)
+    stages = 4 + len(sims) + (4 + len(tests) + len(config.ablations)) * int(config.simulate_target)
     progress = _Progress(total=stages)
     log = progress.log
     if len(tests) < len(config.test_motions):
@@ -144,7 +145,7 @@ def run_demo(
             "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
         )
     j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
-    renderer = baselines = evaluation = None
+    renderer = baselines = evaluation = videos = None
     if config.simulate_target:
         for name in tests:
             progress.stage(
@@ -167,6 +168,9 @@ def run_demo(
         evaluation = progress.stage(
             "evaluation (unseen motions, unseen cameras)", lambda: stage_eval(project, config, log)
         )
+        videos = progress.stage(
+            "videos (ground truth | neural render)", lambda: stage_videos(project, config, log)
+        )
 
     report = {
         "preset": preset_name,
@@ -179,6 +183,7 @@ def run_demo(
         "renderer": renderer,
         "baselines": baselines,
         "evaluation": evaluation,
+        "videos": videos,
         "total_seconds": time.perf_counter() - progress.start,
     }
     write_json(project.root / "report.json", report)
@@ -249,6 +254,17 @@ def _renderer_markdown(report: dict) -> list[str]:
                 )
     lines += ["", "Ground truth (top row) and every method on the same frames:", ""]
     lines += [f"![{m}](eval/compare-{m}.png)" for m in ev["motions"]]
+    videos = report.get("videos") or {}
+    if videos:
+        lines += ["", "Videos of the unseen motions (simulation | neural render, the camera circles "
+                  "the body):", ""]  # fmt: skip
+        for name, v in videos.items():
+            ms = v["median_ms"]
+            lines.append(
+                f"- [`videos/{name}.gif`](videos/{name}.gif): {v['frames']} frames; neural path "
+                f"{ms['total']:.0f} ms/frame median (Joint2Coarse {ms['joint2coarse']:.2f}, body "
+                f"background {ms['background']:.0f}, raster + network {ms['raster+network']:.0f})"
+            )
     return lines
 
 
