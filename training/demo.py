@@ -118,6 +118,7 @@ def run_demo(
     tests = [m.name for m in available_test_motions(config)]
     train = config.train_motion.name
     sims = [(train, "proxy")] + ([(train, "target")] if config.simulate_target else [])
+    sims += [(m.name, "proxy") for m in config.joint2coarse_extra]
     sims += [(name, "proxy") for name in tests]
     if config.simulate_target:
         sims += [(name, "target") for name in tests]
@@ -310,7 +311,9 @@ def report_markdown(report: dict) -> str:
         "",
         "## Joint2Coarse: proxy from joints, against simulation",
         "",
-        f"Trained on `{j['train_motion']}`; held-out frames of it (validation) and unseen motions.",
+        f"Trained on `{j['train_motion']}`"
+        + "".join(f" and `{m}`" for m in j.get("extra_train_motions", []))
+        + "; held-out frames (validation) and unseen motions.",
         "",
         "| data | mean (mm) | p95 (mm) | max (mm) |",
         "| --- | --- | --- | --- |",

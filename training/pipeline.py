@@ -119,6 +119,9 @@ class PipelineConfig:
     derived proxy (the ``template-NAME`` ablation sets it)."""
     inception_path: str = ""
     """InceptionV3 weights (torchvision layout) for FID; empty: FID is reported unavailable."""
+    joint2coarse_extra: tuple[MotionSpec, ...] = ()
+    """More training motions for Joint2Coarse only (their proxies are simulated; the renderer
+    still trains on ``train_motion``'s data set). Names must differ from the test motions."""
     joint2coarse_preset: str = "fast"
     """Joint2Coarse preset name (``training.joint2coarse.PRESETS``) ..."""
     joint2coarse_steps: tuple[int, int, int] | None = None
@@ -141,6 +144,9 @@ class PipelineConfig:
             data["body"] = BodyShape(**data.get("body", {}))
             data["train_motion"] = MotionSpec(**data["train_motion"])
             data["test_motions"] = tuple(MotionSpec(**m) for m in data.get("test_motions", ()))
+            data["joint2coarse_extra"] = tuple(
+                MotionSpec(**m) for m in data.get("joint2coarse_extra", ())
+            )
             for key in ("baselines", "ablations"):
                 if key in data:
                     data[key] = tuple(data[key])
@@ -181,6 +187,7 @@ PRESETS: dict[str, PipelineConfig] = {
         test_stride=6,
         renderer_preset="tiny",
         renderer_steps=30,
+        joint2coarse_extra=(MotionSpec("walk", "walk", 30, seed=2),),
         joint2coarse_steps=(300, 300, 100),
     ),
     # The default: minutes on 2 cores, results that look like the garment.
@@ -230,7 +237,7 @@ def stage_motions(project: Project, config: PipelineConfig, log: Log = _quiet) -
     """Write every motion of the project as a BVH on the mannequin: ``motions/NAME.bvh``."""
     from core.motion.bvh import write_bvh
 
-    specs = (config.train_motion, *available_test_motions(config))
+    specs = (config.train_motion, *config.joint2coarse_extra, *available_test_motions(config))
     params = {"specs": [asdict(s) for s in specs], "fps": config.fps, "body": asdict(config.body)}
     inputs = [s.path for s in specs if s.kind == "file"]
 
@@ -493,21 +500,29 @@ def stage_joint2coarse(
     torch.set_num_threads(config.torch_threads)
     cfg = joint2coarse_config(config)
     train = config.train_motion.name
+    extra = [m.name for m in config.joint2coarse_extra]
     tests = [m.name for m in available_test_motions(config)]
+    if set(extra) & {train, *tests}:
+        raise InputError(f"joint2coarse_extra motions {extra} must differ from the others")
     train_cache = project.path(f"sim/{train}-proxy", "cache.npz")
+    extra_caches = [project.path(f"sim/{name}-proxy", "cache.npz") for name in extra]
     test_caches = [project.path(f"sim/{name}-proxy", "cache.npz") for name in tests]
-    motions = [project.path("motions", f"{n}.bvh") for n in (train, *tests)]
+    motions = [project.path("motions", f"{n}.bvh") for n in (train, *extra, *tests)]
     params = {"joint2coarse": cfg.to_dict(), "train": train, "tests": tests}
+    if extra:
+        params["extra"] = extra
 
     def work(out: Path) -> list[str]:
-        motion = load_project_motion(project, train)
-        cache = load_cache(train_cache)
-        joints, root_rot = joint2coarse_inputs(motion)
-        clip = Joint2CoarseClip(joints, root_rot, cache.positions, name=train)
-        result = train_joint2coarse([clip], out, cfg, progress=progress)
+        clips = []
+        for name, path in ((train, train_cache), *zip(extra, extra_caches)):
+            joints, root_rot = joint2coarse_inputs(load_project_motion(project, name))
+            clips.append(Joint2CoarseClip(joints, root_rot, load_cache(path).positions, name=name))
+        joints, root_rot = clips[0].joints, clips[0].root_rotations
+        result = train_joint2coarse(clips, out, cfg, progress=progress)
         report = {
             "config": cfg.to_dict(),
             "train_motion": train,
+            "extra_train_motions": extra,
             "validation_error_mm": {k: asdict(v) for k, v in result.stage_errors.items()},
             "validation_mean_shape_baseline_mm": asdict(result.baseline)
             if result.baseline
@@ -531,7 +546,7 @@ def stage_joint2coarse(
     project.run_stage(
         "joint2coarse",
         params,
-        [train_cache, *test_caches, *motions],
+        [train_cache, *extra_caches, *test_caches, *motions],
         work,
         resumable=["joint2coarse_train.pt"],
     )
