@@ -1,11 +1,17 @@
 """Joint2Coarse inference speed on CPU: streaming latency per frame and batched throughput.
 
-Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600]``
+Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600]
+[--threads 1 2] [--output-basis 256 0]``
 
-Times the paper-sized network (widths at full size for 2048+ vertices) with random weights:
-speed does not depend on what the weights are. Runs under ``torch.inference_mode`` with 1 and
-then 2 threads (streaming in float32 and bfloat16, batched in float32), then times a few
-training steps of each stage; prints one line per measurement.
+Times the paper-sized network (widths at full size for 2048+ vertices) with random weights
+(speed does not depend on what the weights are), once per ``--output-basis`` (default: the
+config's, then 0, the paper's full last layer), with 1 and then 2
+threads: streaming (:class:`Joint2CoarseStream`, float32 and bfloat16) and batched
+(:func:`predict_proxy`). Prints median and 95th percentile milliseconds per frame, both wall
+clock and the thread's CPU time (which other processes on a busy machine inflate less), the
+load average around each measurement, and whether streaming meets the 2 ms target (issue #6:
+default config, 1 thread, float32, median wall clock). Then times a few training steps of
+each stage.
 """
 
 from __future__ import annotations
@@ -30,12 +36,56 @@ from training.joint2coarse.descriptor import joint2coarse_inputs
 from training.joint2coarse.model import Joint2CoarseNet
 from training.joint2coarse.synthetic import synthetic_clip, synthetic_walk
 
+#: Streaming latency target of issue #6 (milliseconds per frame, median, 1 thread).
+TARGET_MS = 2.0
+
+
+def _load() -> str:
+    return f"load {os.getloadavg()[0]:.2f}/{os.cpu_count()} CPUs"
+
+
+def _summary(wall_s: np.ndarray, cpu_s: np.ndarray) -> str:
+    w, c = wall_s * 1e3, cpu_s * 1e3
+    return (
+        f"median {np.median(w):.3f} ms/frame, p95 {np.percentile(w, 95):.3f} ms "
+        f"(CPU time: median {np.median(c):.3f}, p95 {np.percentile(c, 95):.3f} ms)"
+    )
+
+
+def time_stream(net: Joint2CoarseNet, joints, root_rot, bfloat16: bool) -> tuple:
+    """Wall and thread-CPU seconds of every :meth:`Joint2CoarseStream.push` over the clip."""
+    stream = Joint2CoarseStream(net, bfloat16=bfloat16)
+    for f in range(50):  # warm-up
+        stream.push(joints[f], root_rot[f])
+    stream.reset()
+    wall, cpu = np.empty(len(joints)), np.empty(len(joints))
+    for f in range(len(joints)):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        stream.push(joints[f], root_rot[f])
+        wall[f], cpu[f] = time.perf_counter() - t0, time.thread_time() - c0
+    return wall, cpu
+
+
+def time_batch(net: Joint2CoarseNet, joints, root_rot, batch: int, repeats: int = 5) -> tuple:
+    """Wall and thread-CPU seconds per frame of each of ``repeats`` :func:`predict_proxy` runs."""
+    predict_proxy(net, joints[:batch], root_rot[:batch], batch_size=batch)
+    wall, cpu = np.empty(repeats), np.empty(repeats)
+    for r in range(repeats):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        predict_proxy(net, joints, root_rot, batch_size=batch)
+        wall[r], cpu[r] = time.perf_counter() - t0, time.thread_time() - c0
+    return wall / len(joints), cpu / len(joints)
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vertices", type=int, default=2000, help="proxy vertex count Vc")
     parser.add_argument("--frames", type=int, default=600, help="frames of the test clip")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument(
+        "--output-basis", type=int, nargs="+", default=[Joint2CoarseConfig().output_basis, 0],
+        help="output basis sizes to compare (0: the full last layer); default: the config's, 0",
+    )  # fmt: skip
     parser.add_argument(
         "--encoder-widths", type=int, nargs="+", default=None,
         help="shape encoder widths (decoder mirrors them); default: the paper's",
@@ -46,51 +96,52 @@ def main() -> None:
     )  # fmt: skip
     args = parser.parse_args()
 
-    config = Joint2CoarseConfig()
+    base = Joint2CoarseConfig()
     if args.encoder_widths:
-        config = replace(config, encoder_widths=tuple(args.encoder_widths))
-    torch.manual_seed(0)
-    net = Joint2CoarseNet(config, args.vertices, config.num_samples * 57).eval()
+        base = replace(base, encoder_widths=tuple(args.encoder_widths))
     joints, root_rot = joint2coarse_inputs(synthetic_walk(args.frames, seed=0))
-    params = sum(p.numel() for p in net.motion_encoder.parameters())
-    params += sum(p.numel() for p in net.shape_decoder.parameters())
-    print(f"load average before: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
-    print(
-        f"Vc={args.vertices} descriptor={net.descriptor_dim} "
-        f"shape widths={config.shape_widths(args.vertices)} inference params={params}"
-    )
-    for threads in args.threads:
-        torch.set_num_threads(threads)
-        for half in (False, True):
-            stream = Joint2CoarseStream(net, bfloat16=half)
-            for f in range(50):  # warm-up
-                stream.push(joints[f], root_rot[f])
-            stream.reset()
-            times = np.empty(args.frames)
-            for f in range(args.frames):
-                t0 = time.perf_counter()
-                stream.push(joints[f], root_rot[f])
-                times[f] = time.perf_counter() - t0
-            ms = times * 1e3
-            print(
-                f"threads={threads} streaming {'bfloat16' if half else 'float32'}: "
-                f"median {np.median(ms):.3f} ms/frame, p95 {np.percentile(ms, 95):.3f} ms, "
-                f"min {ms.min():.3f} ms ({args.frames} frames)"
-            )
-        for batch in (64, 256):
-            predict_proxy(net, joints[:batch], root_rot[:batch], batch_size=batch)
-            best = np.inf
-            for _ in range(3):
-                t0 = time.perf_counter()
-                predict_proxy(net, joints, root_rot, batch_size=batch)
-                best = min(best, time.perf_counter() - t0)
-            print(
-                f"threads={threads} batched (batch {batch}): {best / args.frames * 1e3:.3f} ms/frame, "
-                f"{args.frames / best:.0f} frames/s (best of 3, {args.frames} frames)"
-            )
-    print(f"load average after inference: {os.getloadavg()[0]:.2f}")
+    print(f"{_load()} before; torch {torch.__version__}, {args.frames} frames per measurement")
+    verdict = None
+    for k in args.output_basis:
+        config = replace(base, output_basis=k)
+        torch.manual_seed(0)
+        net = Joint2CoarseNet(config, args.vertices, config.num_samples * 57).eval()
+        params = sum(p.numel() for p in net.motion_encoder.parameters())
+        params += sum(p.numel() for p in net.shape_decoder.parameters())
+        params += sum(b.numel() for b in net.shape_decoder.buffers())
+        name = f"output_basis={k}" + (
+            " (default)" if k == Joint2CoarseConfig().output_basis else ""
+        )
+        print(
+            f"== {name}: Vc={args.vertices}, descriptor {net.descriptor_dim}, shape widths "
+            f"{config.shape_widths(args.vertices)}, basis {net.n_basis}, "
+            f"{params / 1e6:.2f} M inference weights ({params * 4 / 2**20:.1f} MiB float32)"
+        )
+        for threads in args.threads:
+            torch.set_num_threads(threads)
+            for half in (False, True):
+                wall, cpu = time_stream(net, joints, root_rot, half)
+                kind = "bfloat16" if half else "float32"
+                print(f"  threads={threads} streaming {kind}: {_summary(wall, cpu)}, {_load()}")
+                if threads == 1 and not half and k == Joint2CoarseConfig().output_basis:
+                    verdict = float(np.median(wall)) * 1e3
+            for batch in (64, 256):
+                wall, cpu = time_batch(net, joints, root_rot, batch)
+                print(
+                    f"  threads={threads} batched (batch {batch}): {_summary(wall, cpu)}, "
+                    f"{1 / np.median(wall):.0f} frames/s, {_load()}"
+                )
+    if verdict is not None:
+        met = "MET" if verdict < TARGET_MS else "NOT met"
+        print(
+            f"target {TARGET_MS} ms/frame (default config, 1 thread, float32 streaming, median): "
+            f"{met} at {verdict:.3f} ms ({_load()})"
+        )
     if args.train_steps:
-        _time_training(config, args.vertices, args.train_steps, args.threads[0])
+        for k in args.output_basis:
+            _time_training(
+                replace(base, output_basis=k), args.vertices, args.train_steps, args.threads[0]
+            )
 
 
 def _time_training(base: Joint2CoarseConfig, n_vertices: int, steps: int, threads: int) -> None:
@@ -114,7 +165,7 @@ def _time_training(base: Joint2CoarseConfig, n_vertices: int, steps: int, thread
     for stage, ts in stamps.items():
         per = (ts[-1] - ts[0]) / (len(ts) - 1)
         print(
-            f"threads={threads} training, Vc={rings * around}, batch "
+            f"threads={threads} training, output_basis={base.output_basis}, Vc={rings * around}, batch "
             f"{config.batch_size}, stage {stage}: {per * 1e3:.1f} ms/step"
         )
 

@@ -35,6 +35,14 @@ from training.joint2coarse import (
     train_joint2coarse,
     vertex_errors,
 )
+from training.joint2coarse.model import (
+    MODEL_FORMAT,
+    Joint2CoarseNet,
+    OutputBasis,
+    principal_basis,
+    save_model,
+)
+from training.joint2coarse.predict import FrozenForward
 from training.joint2coarse.synthetic import synthetic_clip, synthetic_walk
 
 torch.set_num_threads(1)
@@ -46,6 +54,7 @@ SMALL = Joint2CoarseConfig(
     encoder_widths=(128, 64),
     latent_dim=16,
     motion_widths=(128, 64),
+    output_basis=64,  # 64 x (128 + 360) < 128 x 360: used (the default 256 would not be)
     min_width=16,
     width_reference_vertices=120,
     batch_size=64,
@@ -133,6 +142,14 @@ def test_descriptor_invariant_to_walk_position_and_facing_not_tilt():
 
 def test_training_beats_mean_shape_and_writes_files(trained, clips):
     res = trained
+    # The default config predicts coefficients of a basis of the training shapes' principal
+    # directions, scaled to unit-size coefficients: orthogonal rows, norms decreasing.
+    basis = res.net.shape_decoder[-1].basis.numpy().astype(np.float64)
+    assert res.net.n_basis == SMALL.output_basis == 64
+    gram = basis @ basis.T
+    norms = np.diag(gram)
+    assert_close(gram, np.diag(norms), atol=1e-4 * norms[0], what="basis rows orthogonal")
+    assert (np.diff(norms) <= 1e-6 * norms[0]).all() and norms[0] > 1.0
     assert res.model_path.is_file() and res.checkpoint_path.is_file()
     base = res.baseline.mean_mm
     for stage in ("autoencoder", "motion", "finetune"):
@@ -244,6 +261,131 @@ def test_streaming_equals_batch(trained):
         frames = np.stack([stream.push(j, r) for j, r in zip(joints, root_rot)])
         assert_close(frames, batch, atol=1e-5, what="stream vs batch")
         stream.reset()
+
+
+def _random_net(config: Joint2CoarseConfig, n_vertices: int, seed: int = 0) -> Joint2CoarseNet:
+    """An untrained network with made-up statistics and (when it has one) output basis."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    d, out = config.num_samples * 57, 3 * n_vertices
+    net = Joint2CoarseNet(config, n_vertices, d)
+    net.set_statistics(
+        rng.normal(0, 0.3, d), rng.uniform(0.05, 0.3, d),
+        rng.normal(0, 0.3, out), rng.uniform(0.001, 0.05, out),
+    )  # fmt: skip
+    net.set_output_basis(rng.normal(size=(50, out)))
+    return net.eval()
+
+
+def test_output_basis_sizes_and_principal_basis():
+    cfg = replace(SMALL, output_basis=32)
+    assert cfg.basis_size(120) == 32 and cfg.basis_size(10) == 0  # 32 >= 30 coordinates: full
+    assert replace(SMALL, output_basis=0).basis_size(120) == 0
+    # The default: a basis where it makes the last layer smaller (2000 vertices: 2.0 M weights
+    # instead of 12 M), none for small proxies (300 vertices: 307 k against 270 k).
+    assert Joint2CoarseConfig().basis_size(2000) == 256
+    assert Joint2CoarseConfig().basis_size(300) == 0
+    with pytest.raises(InputError, match="output_basis"):
+        Joint2CoarseConfig(output_basis=-1)
+    net = Joint2CoarseNet(cfg, 120, cfg.num_samples * 57)
+    assert net.n_basis == 32 and isinstance(net.shape_decoder[-1], OutputBasis)
+    assert net.shape_decoder[-2].out_features == 32
+    assert net.shape_decoder(torch.zeros(5, cfg.latent_dim)).shape == (5, 360)
+    full = Joint2CoarseNet(replace(cfg, output_basis=0), 120, cfg.num_samples * 57)
+    assert full.n_basis == 0 and full.shape_decoder[-1].out_features == 360
+
+    # Rank-6 data: 6 orthogonal rows that reproduce it exactly with coefficients of RMS 1; the
+    # rest zero; deterministic; the same from the SVD branch (N <= D) and the eigen one (N > D).
+    rng = np.random.default_rng(3)
+    data = rng.normal(size=(40, 6)) @ rng.normal(size=(6, 30))
+    basis = principal_basis(data, 8)
+    assert basis.shape == (8, 30) and basis.dtype == np.float32
+    b = basis[:6].astype(np.float64)
+    norms = (b**2).sum(1)
+    assert_close(b @ b.T, np.diag(norms), atol=1e-5 * norms[0], what="orthogonal rows")
+    coefficients = data @ b.T / norms
+    assert_close((coefficients**2).mean(0), np.ones(6), atol=1e-4, what="unit-size coefficients")
+    assert_close(coefficients @ b, data, atol=1e-4, what="rank-6 reconstruction")
+    assert np.abs(basis[6:]).max() < 1e-5  # beyond the rank: the RMS there is rounding noise
+    np.testing.assert_array_equal(basis, principal_basis(data, 8))
+    peaks = basis[np.arange(6), np.abs(basis[:6]).argmax(1)]
+    assert (peaks > 0).all()
+    wide = data[:10, :20]  # 10 samples of 20 coordinates: SVD branch
+    tall = np.tile(wide, (3, 1))  # 30 samples, the same directions: eigen branch
+    assert_close(principal_basis(tall, 5), principal_basis(wide, 5), atol=1e-4, what="eigh")
+    assert not principal_basis(data[:3], 8)[3:].any()  # 3 samples: rank 3 at most
+
+
+@pytest.mark.parametrize("output_basis", [0, 32])
+def test_frozen_forward_equals_network(output_basis):
+    net = _random_net(replace(SMALL, output_basis=output_basis), 120)
+    desc = torch.from_numpy(np.random.default_rng(1).normal(0, 1.0, (6, net.descriptor_dim)))
+    desc = desc.float()
+    with torch.inference_mode():
+        ref = net(desc).reshape(6, -1).numpy()
+        fast = FrozenForward(net)
+        assert_close(fast(desc).numpy(), ref, atol=2e-6, what="frozen batch")
+        for i in range(6):  # one frame at a time, through the preallocated buffers
+            assert_close(fast(desc[i : i + 1]).numpy(), ref[i : i + 1], atol=2e-6, what="one")
+        again = FrozenForward(net)(desc).numpy()
+        np.testing.assert_array_equal(again, FrozenForward(net)(desc).numpy())
+        # Far outside the training range the output clamp still holds.
+        wild = FrozenForward(net)(desc * 1e4).numpy()
+        assert_close(wild, net(desc * 1e4).reshape(6, -1).numpy(), atol=1e-5, what="clamped")
+        half = FrozenForward(net, torch.bfloat16)(desc).numpy()
+        assert np.abs(half - ref).max() < 0.02  # bfloat16 rounding of made-up weights
+
+
+def test_stream_snapshots_weights_and_full_layer_stream_equals_batch():
+    net = _random_net(replace(SMALL, output_basis=0), 120)
+    joints, root_rot, _ = synthetic_clip(25, seed=11)
+    stream = Joint2CoarseStream(net)
+    frames = np.stack([stream.push(j, r) for j, r in zip(joints, root_rot)])
+    batch = predict_proxy(net, joints, root_rot)
+    assert frames.shape == (25, 120, 3) and frames.dtype == np.float32
+    assert_close(frames, batch, atol=1e-5, what="full-layer stream vs batch")
+    with torch.no_grad():  # the stream took a copy: later changes to net are not seen
+        net.shape_decoder[-1].bias.add_(1.0)
+    stream.reset()
+    again = np.stack([stream.push(j, r) for j, r in zip(joints, root_rot)])
+    np.testing.assert_array_equal(again, frames)
+
+
+def test_model_files_from_before_the_output_basis(tmp_path, clips):
+    """Files written before ``output_basis`` existed load as full-layer models; a file whose
+    weights do not fit its config, and an old training checkpoint, are refused clearly."""
+    net = _random_net(replace(SMALL, output_basis=0), 120)
+    save_model(net, tmp_path / "new.pt")
+    payload = torch.load(tmp_path / "new.pt", weights_only=True)
+    assert payload["format"] == MODEL_FORMAT
+    del payload["config"]["output_basis"]  # what an older version wrote
+    torch.save(payload, tmp_path / "old.pt")
+    old = load_model(tmp_path / "old.pt")
+    assert old.config.output_basis == 0 and old.n_basis == 0
+    joints, root_rot, _ = synthetic_clip(12, seed=2)
+    assert_close(
+        predict_proxy(old, joints, root_rot), predict_proxy(net, joints, root_rot), what="old"
+    )
+    payload["config"]["output_basis"] = 32  # a config that does not match the weights
+    torch.save(payload, tmp_path / "mismatch.pt")
+    with pytest.raises(InputError, match=r"mismatch\.pt: Joint2Coarse weights do not fit"):
+        load_model(tmp_path / "mismatch.pt")
+    payload["config"]["colour"] = "red"
+    torch.save(payload, tmp_path / "unknown.pt")
+    with pytest.raises(InputError, match=r"unknown\.pt: .*unknown joint2coarse config keys"):
+        load_model(tmp_path / "unknown.pt")
+
+    # An older training checkpoint of the default config: resuming it with today's default
+    # (an output basis) is refused, not silently mixed.
+    run = tmp_path / "run"
+    train_joint2coarse(clips, run, replace(TINY, output_basis=0), progress=False)
+    ckpt = torch.load(run / "joint2coarse_train.pt", weights_only=True)
+    del ckpt["config"]["output_basis"]
+    torch.save(ckpt, run / "joint2coarse_train.pt")
+    with pytest.raises(InputError, match="different config"):
+        train_joint2coarse(clips, run, TINY, progress=False)
+    again = train_joint2coarse(clips, run, replace(TINY, output_basis=0), progress=False)
+    assert again.resumed_at_step == TINY.total_steps
 
 
 def test_extreme_motion_is_finite_and_bounded(trained):

@@ -5,7 +5,8 @@ Array-level API (the CLI and project folders wrap it):
 - inputs: :func:`joint2coarse_inputs` (Motion -> joints (T, 20, 3), root rotations (T, 3, 3)),
   :func:`canonical_joint_order`, :func:`motion_descriptors`, :func:`heading_rotations`;
 - training: :class:`Joint2CoarseClip`, :func:`train_joint2coarse` (resumable);
-- prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream`;
+- prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream` (on a
+  :class:`FrozenForward`: the network as plain matrix products, for one frame at a time);
 - extras: :func:`push_out_of_capsules`, :func:`vertex_errors`.
 """
 
@@ -22,7 +23,7 @@ from training.joint2coarse.descriptor import (
 )
 from training.joint2coarse.metrics import VertexErrors, vertex_errors
 from training.joint2coarse.model import Joint2CoarseNet, load_model, save_model
-from training.joint2coarse.predict import Joint2CoarseStream, predict_proxy
+from training.joint2coarse.predict import FrozenForward, Joint2CoarseStream, predict_proxy
 from training.joint2coarse.train import (
     Joint2CoarseClip,
     Joint2CoarseTrainResult,
@@ -32,6 +33,7 @@ from training.joint2coarse.train import (
 
 __all__ = [
     "DEFAULT_MARGIN_M",
+    "FrozenForward",
     "JOINT2COARSE_JOINTS",
     "PRESETS",
     "Joint2CoarseClip",

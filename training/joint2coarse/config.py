@@ -31,6 +31,15 @@ class Joint2CoarseConfig(PlainConfig):
     """Size of the shape latent the motion encoder is trained to hit."""
     motion_widths: tuple[int, ...] = (512, 256, 128)
     """Hidden widths of the motion encoder (its output is the ``latent_dim`` latent)."""
+    output_basis: int = 256
+    """Size of the decoder's linear output basis: its last layer predicts this many coefficients
+    of the principal components of the (normalised, root-frame) training shapes, and the basis
+    turns them into the ``Vc * 3`` coordinates. The decoder then ends in a ``width x K`` layer
+    and a fixed ``K x Vc * 3`` basis instead of a ``width x Vc * 3`` layer: at 2000 vertices and
+    K = 256, 2.0 M weights instead of 12 M, which is what makes streaming fast. Used only where
+    it makes the layer smaller (:meth:`basis_size`; small proxies keep the full layer). 0 gives
+    the paper's full last layer everywhere; model files written before this field existed read
+    as 0."""
     width_reference_vertices: int = 2048
     """Proxy vertex count at which ``encoder_widths`` apply in full. Smaller proxies scale every
     shape-network width by ``n_vertices / width_reference_vertices`` (rounded up), never below
@@ -77,7 +86,7 @@ class Joint2CoarseConfig(PlainConfig):
             v = getattr(self, name)
             if not (isinstance(v, int) and v > 0):
                 raise InputError(f"joint2coarse config {name}={v!r} must be a positive integer")
-        for name in ("autoencoder_steps", "motion_steps", "finetune_steps", "seed"):
+        for name in ("autoencoder_steps", "motion_steps", "finetune_steps", "output_basis", "seed"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise InputError(f"joint2coarse config {name}={v!r} must be an integer >= 0")
@@ -109,6 +118,18 @@ class Joint2CoarseConfig(PlainConfig):
         """Encoder hidden widths for a proxy of ``n_vertices`` (the small-proxy rule)."""
         scale = min(1.0, n_vertices / self.width_reference_vertices)
         return tuple(max(self.min_width, min(w, math.ceil(w * scale))) for w in self.encoder_widths)
+
+    def basis_size(self, n_vertices: int) -> int:
+        """Output basis components for a proxy of ``n_vertices``; 0 means a full last layer.
+
+        The basis is used only where it makes the decoder's output smaller: ``K * (w + Vc * 3)``
+        weights against ``w * Vc * 3`` for a last hidden width ``w`` (at 2000 vertices and the
+        paper's widths, 2.0 M against 12 M; a 120-vertex proxy keeps its full last layer).
+        """
+        k, out = self.output_basis, 3 * n_vertices
+        widths = self.shape_widths(n_vertices)
+        w = widths[0] if widths else self.latent_dim
+        return k if 0 < k and k * (w + out) < w * out else 0
 
 
 #: Named configurations. ``paper``: the published sizes. ``fast``: a quick look on a laptop.

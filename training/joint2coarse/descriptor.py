@@ -138,12 +138,12 @@ def to_root_frame(points: np.ndarray, origin: np.ndarray, heading: np.ndarray) -
     (T, N, 3) float64
     """
     d = np.asarray(points, np.float64) - np.asarray(origin, np.float64)[:, None]
-    return np.einsum("tji,tnj->tni", heading, d)
+    return np.matmul(d, heading)  # row vectors: (H^T d)^T = d^T H; BLAS, unlike einsum
 
 
 def from_root_frame(points: np.ndarray, origin: np.ndarray, heading: np.ndarray) -> np.ndarray:
     """Root-frame points back to world: ``heading p + origin``. Shapes as :func:`to_root_frame`."""
-    p = np.einsum("tij,tnj->tni", heading, np.asarray(points, np.float64))
+    p = np.matmul(np.asarray(points, np.float64), np.swapaxes(heading, -1, -2))
     return p + np.asarray(origin, np.float64)[:, None]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -29,6 +30,59 @@ def mlp(in_dim: int, widths: tuple[int, ...], out_dim: int, dropout: float) -> n
     return nn.Sequential(*layers)
 
 
+class OutputBasis(nn.Module):
+    """Fixed linear basis: coefficients (B, K) -> ``coefficients @ basis`` (B, N).
+
+    The basis (K, N) float32 is a buffer (saved with the weights, never trained); it starts at
+    zero and is set by :meth:`Joint2CoarseNet.set_output_basis`.
+    """
+
+    def __init__(self, n_components: int, n_outputs: int):
+        super().__init__()
+        self.register_buffer("basis", torch.zeros(n_components, n_outputs))
+
+    def forward(self, coefficients: torch.Tensor) -> torch.Tensor:
+        return coefficients @ self.basis
+
+
+def principal_basis(data: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` leading principal directions of ``data`` (its rows are samples), as rows, each
+    scaled by the data's RMS along it, so the coefficients of the data are about unit size.
+
+    The directions are those of the uncentred second moment ``data.T @ data``: for z-scored
+    data (mean zero) that is the PCA. Unit-size coefficients are what the decoder's last layer
+    learns easily (as it does the unit-variance z-scores of a full last layer); unscaled, the
+    leading coefficients are tens of units and training is slower and less accurate. Computed in
+    float64 from a thin SVD, or from the eigen decomposition of ``data.T @ data`` when there are
+    more samples than coordinates. Each row's largest entry is made positive, so the result does
+    not depend on the LAPACK sign choice. Rows beyond the data's rank are (about) zero; rows
+    beyond ``min(N, D)`` exactly zero.
+
+    Parameters
+    ----------
+    data : (N, D) float
+    k : int
+
+    Returns
+    -------
+    (k, D) float32 with orthogonal rows, in decreasing order of norm (the RMS).
+    """
+    x = np.asarray(data, np.float64)
+    n, d = x.shape
+    if n > d:
+        power, vecs = np.linalg.eigh(x.T @ x)  # ascending
+        rows = vecs[:, ::-1][:, :k].T
+        rms = np.sqrt(np.maximum(power[::-1][:k], 0.0) / n)
+    else:
+        _, sv, vh = np.linalg.svd(x, full_matrices=False)
+        rows, rms = vh[:k], sv[:k] / np.sqrt(n)
+    peak = np.argmax(np.abs(rows), axis=1)
+    rows = rows * np.sign(rows[np.arange(len(rows)), peak])[:, None]
+    out = np.zeros((k, d), np.float32)
+    out[: len(rows)] = rows * rms[:, None]
+    return out
+
+
 class Joint2CoarseNet(nn.Module):
     """Shape autoencoder + motion encoder, with the normalisation statistics as buffers.
 
@@ -39,6 +93,11 @@ class Joint2CoarseNet(nn.Module):
         Proxy vertex count Vc.
     descriptor_dim : int
         Motion descriptor length D (``config.num_samples * 57``).
+
+    With an output basis (``config.basis_size(n_vertices)`` K > 0) the shape decoder's last
+    layer predicts K coefficients and ends in an :class:`OutputBasis` (K, Vc * 3), set from the
+    training shapes by :meth:`set_output_basis`. Either way ``shape_decoder`` maps a latent to
+    (B, Vc * 3) normalised vertices.
 
     Buffers ``desc_mean``, ``desc_std`` are (D,) float32; ``vert_mean``, ``vert_std`` are
     (Vc * 3,) float32, per coordinate of root-frame vertices. They travel in the state dict.
@@ -52,7 +111,12 @@ class Joint2CoarseNet(nn.Module):
         out = 3 * n_vertices
         widths = config.shape_widths(n_vertices)
         self.shape_encoder = mlp(out, widths, config.latent_dim, config.dropout)
-        self.shape_decoder = mlp(config.latent_dim, widths[::-1], out, config.dropout)
+        self.n_basis = config.basis_size(n_vertices)
+        if self.n_basis:
+            self.shape_decoder = mlp(config.latent_dim, widths[::-1], self.n_basis, config.dropout)
+            self.shape_decoder.append(OutputBasis(self.n_basis, out))
+        else:
+            self.shape_decoder = mlp(config.latent_dim, widths[::-1], out, config.dropout)
         self.motion_encoder = mlp(
             descriptor_dim, config.motion_widths, config.latent_dim, config.dropout
         )
@@ -69,6 +133,20 @@ class Joint2CoarseNet(nn.Module):
         ):  # fmt: skip
             buf = getattr(self, name)
             buf.copy_(torch.as_tensor(value, dtype=buf.dtype).reshape(buf.shape))
+
+    def set_output_basis(self, normalised_vertices: np.ndarray) -> None:
+        """Set the output basis to the principal directions of training shapes.
+
+        Parameters
+        ----------
+        normalised_vertices : (N, Vc * 3) float
+            Training shapes as :meth:`normalise_vertices` gives them (z-scores: the space the
+            training loss measures, so the basis keeps what the loss cares about most). See
+            :func:`principal_basis`.
+        """
+        if self.n_basis:
+            basis = principal_basis(normalised_vertices, self.n_basis)
+            self.shape_decoder[-1].basis.copy_(torch.from_numpy(basis))
 
     def normalise_descriptor(self, desc: torch.Tensor) -> torch.Tensor:
         """(B, D) float32 metres -> clamped z-scores."""
@@ -117,9 +195,21 @@ def load_model(path: str | os.PathLike) -> Joint2CoarseNet:
     return net_from_payload(payload, path)
 
 
+def stored_config(payload: dict, path: str | os.PathLike | None = None) -> Joint2CoarseConfig:
+    """The config of a saved payload; files from before ``output_basis`` existed read as 0."""
+    data = payload.get("config")
+    if not isinstance(data, dict):
+        raise InputError("Joint2Coarse file has no config", path)
+    data = {"output_basis": 0, **data}
+    try:
+        return Joint2CoarseConfig.from_dict(data)
+    except (InputError, TypeError) as exc:
+        raise InputError(f"Joint2Coarse file has an unusable config: {exc}", path) from None
+
+
 def net_from_payload(payload: dict, path: str | os.PathLike | None = None) -> Joint2CoarseNet:
     """Build the network a saved payload (model file or training checkpoint) describes."""
-    config = Joint2CoarseConfig.from_dict(payload["config"])
+    config = stored_config(payload, path)
     net = Joint2CoarseNet(config, int(payload["n_vertices"]), int(payload["descriptor_dim"]))
     try:
         net.load_state_dict(payload["state_dict"])

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 import torch
+from torch import nn
 
 from core.errors import InputError
 from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules
@@ -84,14 +83,93 @@ def predict_proxy(
     return out
 
 
+class FrozenForward:
+    """A network's eval-mode forward (descriptor -> root-frame vertices) as plain matrix products.
+
+    Takes a copy of the motion encoder's and the decoder's weights (as ``(in, out)`` matrices
+    in the layout a one-frame product reads fastest) and folds the output denormalisation into
+    the last product: ``clamp(z) * std + mean`` is ``clamp(z * std + mean, mean - c * std,
+    mean + c * std)``, so the last matrix (the output basis, or the full last layer) is scaled
+    by ``std`` and ``mean`` becomes its bias. No module calls, no dropout layers, and one-frame
+    calls write into preallocated buffers. Equals ``net(desc)`` in eval mode up to float32
+    rounding (the slow, obvious reference the tests compare it with). Later training of
+    ``net`` is not seen.
+
+    Parameters
+    ----------
+    net : Joint2CoarseNet
+    dtype : torch.dtype
+        Dtype of the weight copies (``torch.bfloat16``: half the bytes to read; normalisation
+        and the output bias stay float32).
+    """
+
+    def __init__(self, net: Joint2CoarseNet, dtype: torch.dtype = torch.float32):
+        cfg = net.config
+        with torch.no_grad():
+            layers = [
+                m for m in (*net.motion_encoder, *net.shape_decoder) if isinstance(m, nn.Linear)
+            ]
+            basis = net.shape_decoder[-1] if net.n_basis else None
+            if basis is None:  # the decoder's last Linear is the output product
+                *layers, last = layers
+                out_w, out_b = last.weight.T, last.bias
+            else:
+                out_w, out_b = basis.basis, torch.zeros_like(net.vert_mean)
+            std, mean = net.vert_std, net.vert_mean
+            self.dtype = dtype
+            self.weights = [_one_row_layout(m.weight.T, dtype) for m in layers]
+            self.biases = [m.bias.to(dtype).clone() for m in layers]
+            # Layers not followed by a ReLU: the motion encoder's last (the latent) and, with a
+            # basis, the decoder's last (the coefficients).
+            n_motion = sum(isinstance(m, nn.Linear) for m in net.motion_encoder)
+            self.linear_ends = {n_motion - 1, len(layers) - 1 if basis is not None else -1}
+            self.out_weight = _one_row_layout(out_w * std, dtype)
+            self.out_bias = (out_b * std + mean).clone()
+            self.out_low = (mean - cfg.clamp_z * std).clone()
+            self.out_high = (mean + cfg.clamp_z * std).clone()
+            self.desc_mean = net.desc_mean.clone()
+            self.desc_std = net.desc_std.clone()
+        self.clamp_z = cfg.clamp_z
+        self.n_vertices = net.n_vertices
+        self._one = [torch.empty(1, w.shape[1], dtype=dtype) for w in self.weights]
+        self._one_out = torch.empty(1, self.out_weight.shape[1])
+
+    def __call__(self, desc: torch.Tensor) -> torch.Tensor:
+        """(B, D) float32 descriptors -> (B, Vc * 3) float32 root-frame vertices, flattened.
+
+        With B = 1 the result is a preallocated buffer, overwritten by the next one-frame call.
+        """
+        one = len(desc) == 1
+        x = ((desc - self.desc_mean) / self.desc_std).clamp_(-self.clamp_z, self.clamp_z)
+        x = x.to(self.dtype)
+        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+            x = torch.addmm(b, x, w, out=self._one[i]) if one else torch.addmm(b, x, w)
+            if i not in self.linear_ends:
+                x.relu_()
+        if self.dtype == torch.float32:
+            out = self._one_out if one else None
+            y = torch.addmm(self.out_bias, x, self.out_weight, out=out)
+        else:
+            y = (x @ self.out_weight).float().add_(self.out_bias)
+        return torch.minimum(torch.maximum(y, self.out_low, out=y), self.out_high, out=y)
+
+
+def _one_row_layout(weight: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """An (in, out) matrix for ``addmm(bias, x, weight)``, copied to ``dtype`` and laid out the
+    way a one-row product runs fastest on CPU (measured on AVX2, torch 2.13): row-major for
+    float32, column-major for bfloat16 (row-major bfloat16 is up to 10 times slower)."""
+    w = weight.detach().to(dtype)
+    return w.contiguous().clone() if dtype == torch.float32 else w.T.contiguous().T
+
+
 class Joint2CoarseStream:
     """Joint2Coarse one frame at a time, for live use.
 
     Keeps a ring buffer of the joint history the descriptor samples (``(K - 1) * stride + 1``
     frames), so each call costs one descriptor and one network pass, whatever the clip length.
-    Frame i of a stream equals frame i of :func:`predict_proxy` on the same clip. The network
-    runs in eval mode; give the stream a network no other thread is training (a loaded model
-    file, or a ``copy.deepcopy`` snapshot).
+    Frame i of a stream equals frame i of :func:`predict_proxy` on the same clip (up to float32
+    rounding). The network runs as a :class:`FrozenForward`: a copy of its weights taken now,
+    so later training of ``net`` is not seen (make a new stream to see it).
 
     Parameters
     ----------
@@ -103,8 +181,8 @@ class Joint2CoarseStream:
     bfloat16 : bool
         Run the motion encoder and decoder on a bfloat16 copy of their weights (normalisation
         stays float32): half the memory traffic, so lower latency on CPUs where a frame is
-        bound by reading the weights; results then differ from :func:`predict_proxy` by
-        bfloat16 rounding. The copy is taken now: later training of ``net`` is not seen.
+        bound by reading the weights and that have bfloat16 arithmetic; results then differ
+        from :func:`predict_proxy` by bfloat16 rounding.
     """
 
     def __init__(
@@ -115,12 +193,7 @@ class Joint2CoarseStream:
         bfloat16: bool = False,
     ):
         self.net = net
-        self._half = None
-        if bfloat16:
-            self._half = (
-                copy.deepcopy(net.motion_encoder).to(torch.bfloat16).eval(),
-                copy.deepcopy(net.shape_decoder).to(torch.bfloat16).eval(),
-            )
+        self.forward = FrozenForward(net, torch.bfloat16 if bfloat16 else torch.float32)
         cfg = net.config
         self._stride = cfg.stride
         self._samples = cfg.num_samples
@@ -158,7 +231,9 @@ class Joint2CoarseStream:
         """
         joints = np.asarray(joints, np.float64)
         root_rotation = np.asarray(root_rotation, np.float64)
-        check_joint_inputs(joints[None], root_rotation[None], "stream frame")
+        ok = joints.shape == (NUM_JOINTS, 3) and root_rotation.shape == (3, 3)
+        if not (ok and np.isfinite(joints).all() and np.isfinite(root_rotation).all()):
+            check_joint_inputs(joints[None], root_rotation[None], "stream frame")  # says why
         if (capsules is None) != (self.radii is None):
             raise InputError("pass capsules exactly when the stream was made with radii")
         i = self.frame_index
@@ -167,17 +242,10 @@ class Joint2CoarseStream:
         origin = joints[None, 0]
         heading = heading_rotations(root_rotation[None])
         desc = descriptor_from_history(self._ring[slots][None], origin, heading)
-        local = self._forward(desc)
+        with torch.inference_mode():
+            local = self.forward(torch.from_numpy(desc)).numpy().reshape(1, -1, 3)
         world = from_root_frame(local, origin, heading).astype(np.float32)[0]
         self.frame_index = i + 1
         if capsules is not None:
             world = push_out_of_capsules(world, capsules, self.radii, self.margin)
         return world
-
-    def _forward(self, desc: np.ndarray) -> np.ndarray:
-        if self._half is None:
-            return _run_net(self.net, desc)
-        encoder, decoder = self._half
-        with torch.inference_mode():
-            z = self.net.normalise_descriptor(torch.from_numpy(desc)).to(torch.bfloat16)
-            return self.net.denormalise_vertices(decoder(encoder(z)).float()).numpy()

@@ -2,7 +2,8 @@
 
 Stages (DESIGN, "The method"):
 
-1. ``autoencoder``: shape encoder + decoder on normalised root-frame proxy vertices (vertex L2).
+1. ``autoencoder``: shape encoder + decoder on normalised root-frame proxy vertices (vertex L2);
+   the decoder's output basis (``config.output_basis``) is set from the training shapes first.
 2. ``motion``: motion encoder onto the frozen shape latent of each frame (latent L2).
 3. ``finetune``: motion encoder + decoder end to end on vertex L2 (skipped when 0 steps).
 
@@ -31,7 +32,12 @@ from training.csvlog import append_rows, truncate_rows
 from training.joint2coarse.config import Joint2CoarseConfig
 from training.joint2coarse.descriptor import check_joint_inputs, motion_descriptors, to_root_frame
 from training.joint2coarse.metrics import VertexErrors
-from training.joint2coarse.model import Joint2CoarseNet, net_from_payload, save_model
+from training.joint2coarse.model import (
+    Joint2CoarseNet,
+    net_from_payload,
+    save_model,
+    stored_config,
+)
 
 #: Format tag of a training checkpoint.
 CHECKPOINT_FORMAT = "joint2coarse-train/1"
@@ -210,6 +216,7 @@ class _Trainer:
         self.shuffle = torch.Generator().manual_seed(config.seed + 1)
         self.td = torch.from_numpy(data.train_desc)
         self.tx = self.net.normalise_vertices(torch.from_numpy(data.train_verts))
+        self.net.set_output_basis(self.tx.numpy())
         self.vd = torch.from_numpy(data.val_desc)
         self.vx = self.net.normalise_vertices(torch.from_numpy(data.val_verts))
         self.stage = 0
@@ -348,7 +355,7 @@ class _Trainer:
             raise InputError(f"cannot read Joint2Coarse checkpoint: {exc}", path) from None
         if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
             raise InputError(f"not a Joint2Coarse checkpoint ({CHECKPOINT_FORMAT})", path)
-        if payload["config"] != self.config.to_dict():
+        if stored_config(payload, path) != self.config:
             raise InputError(
                 "checkpoint was made with a different config: use a new folder or delete it", path
             )
