@@ -561,13 +561,24 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
     from core.body.colliders import posed_capsules_for
     from core.body.mannequin import make_body
     from core.sim.simulate import penetration_depths
-    from training.joint2coarse import joint2coarse_inputs, predict_proxy, vertex_errors
+    from training.joint2coarse import (
+        Joint2CoarseStream,
+        joint2coarse_inputs,
+        predict_proxy,
+        vertex_errors,
+    )
 
     motion = load_project_motion(project, name)
     joints, root_rot = joint2coarse_inputs(motion)
     start = time.perf_counter()
     pred = predict_proxy(net, joints, root_rot)
     ms = 1e3 * (time.perf_counter() - start) / len(pred)
+    stream = Joint2CoarseStream(net)  # one frame at a time, as the GUI plays a motion
+    frame_ms = []
+    for t in range(len(joints)):
+        start = time.perf_counter()
+        stream.push(joints[t], root_rot[t])
+        frame_ms.append(1e3 * (time.perf_counter() - start))
     body = make_body(config.body)
     capsules = posed_capsules_for(body, motion)
     pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=body.capsules.radii)
@@ -590,6 +601,10 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
         **measured(pred),
         "with_push_out": measured(pushed),
         "batch_ms_per_frame": ms,
+        "streaming_ms_per_frame": {
+            "median": float(np.median(frame_ms)),
+            "p95": float(np.percentile(frame_ms, 95)),
+        },
     }
 
 
