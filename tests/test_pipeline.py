@@ -31,7 +31,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         "cmu-01_01-proxy",
         "twirl-target",
         "cmu-01_01-target",
-        "walk-proxy",
+        "circle-walk-proxy",
     }
     for name, sim in report["simulation"].items():
         assert sim["finite"], name
@@ -40,7 +40,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert proxy["boundary_loops"] == 2 and proxy["components"] == 1
     j2c = report["joint2coarse"]
     assert set(j2c["motions"]) == {"twirl", "cmu-01_01"}
-    assert j2c["extra_train_motions"] == ["walk"]  # trained on two clips
+    assert j2c["extra_train_motions"] == ["circle-walk"]  # trained on two clips
     for m in j2c["motions"].values():
         e = m["error_mm"]
         assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]

@@ -187,7 +187,7 @@ PRESETS: dict[str, PipelineConfig] = {
         test_stride=6,
         renderer_preset="tiny",
         renderer_steps=30,
-        joint2coarse_extra=(MotionSpec("walk", "walk", 30, seed=2),),
+        joint2coarse_extra=(MotionSpec("circle-walk", "circle-walk", 30, seed=2),),
         joint2coarse_steps=(300, 300, 100),
     ),
     # The default: minutes on 2 cores, results that look like the garment.
