@@ -108,7 +108,12 @@ def _start_baselines(project: Project, config: PipelineConfig, log) -> Callable[
 def run_demo(
     config: PipelineConfig, out: str | Path, *, preset_name: str = "custom", force: bool = False
 ) -> dict:
-    """Run every stage into the project folder ``out``; write ``report.json`` and ``report.md``."""
+    """Run every stage into the project folder ``out``; write ``report.json`` and ``report.md``.
+
+    The baselines train in a spawned process beside our renderer (2 cores or more), so a script
+    that calls this must start from an ``if __name__ == "__main__":`` guard (Python's rule for
+    the spawn start method; ``dng demo`` has one).
+    """
     project = Project(out)
     project.root.mkdir(parents=True, exist_ok=True)
     if force:
