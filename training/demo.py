@@ -251,7 +251,16 @@ def _renderer_markdown(report: dict) -> list[str]:
             f"{_fmt(m['mse_masked'])} | {_fmt(m['ssim_masked'])} | {_fmt(m['flicker'])} |"
         )
     if "mse_ratio_ours_to_dnr" in ev:
-        lines += ["", f"MSE of ours / DNR: {ev['mse_ratio_ours_to_dnr']:.2f} (the paper: 0.57)."]
+        lines += [
+            "",
+            f"MSE of ours / DNR, both on Joint2Coarse's proxy: {ev['mse_ratio_ours_to_dnr']:.2f} "
+            "(the paper: 0.57)."
+            + (
+                f" Both on the simulated proxy: {ev['mse_ratio_ours_to_dnr_simulated_proxy']:.2f}."
+                if "mse_ratio_ours_to_dnr_simulated_proxy" in ev
+                else ""
+            ),
+        ]
     first = next(iter(ev["motions"].values()), {})
     fid = next(iter(first.values()), {}).get("fid", {})
     if fid.get("value") is None:

@@ -86,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
             f"{m['ssim']['mean']:7.4f} {m['mse_masked']['mean']:12.4f} {m['flicker']['mean']:8.4f}"
         )
     if "mse_ratio_ours_to_dnr" in report:
-        print(f"MSE ours / DNR: {report['mse_ratio_ours_to_dnr']:.2f}")
+        print(f"MSE ours / DNR, on Joint2Coarse's proxy: {report['mse_ratio_ours_to_dnr']:.2f}")
+    if "mse_ratio_ours_to_dnr_simulated_proxy" in report:
+        ratio = report["mse_ratio_ours_to_dnr_simulated_proxy"]
+        print(f"MSE ours / DNR, on the simulated proxy: {ratio:.2f}")
     print(f"report: {project.path('eval', 'report.json')}")
     return 0
