@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
     from core.errors import InputError
     from core.project import Project
     from training.pipeline import (
-        check_ablation,
         available_test_motions,
+        check_ablation,
         project_config,
         stage_ablation,
         stage_eval,

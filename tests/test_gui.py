@@ -1,0 +1,274 @@
+"""The studio window (``dng gui``): its model without a display, and the real window driven
+through its main flow under Xvfb (``dng gui PROJECT --tour DIR`` in a subprocess)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.gui.model import (
+    CameraPose,
+    Eta,
+    GuiSettings,
+    atlas_image,
+    camera_from_gl,
+    interpolate_path,
+    load_settings,
+    loss_plot,
+    proxy_plan,
+    reatlas,
+    save_settings,
+)
+from app.gui.workers import CancelToken, Worker
+from core.camera import make_camera, project
+from core.errors import InputError
+
+# ----------------------------------------------------------------------- model, no display
+
+
+def gl_look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """The classic gluLookAt view matrix (camera looks down -z, y up)."""
+    eye, target, up = (np.asarray(x, np.float64) for x in (eye, target, up))
+    f = (target - eye) / np.linalg.norm(target - eye)
+    s = np.cross(f, up)
+    s /= np.linalg.norm(s)
+    u = np.cross(s, f)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = s, u, -f
+    m[:3, 3] = -m[:3, :3] @ eye
+    return m
+
+
+def gl_perspective(fov_y_deg, aspect, near=0.1, far=100.0) -> np.ndarray:
+    f = 1.0 / np.tan(np.radians(fov_y_deg) / 2)
+    p = np.zeros((4, 4))
+    p[0, 0], p[1, 1] = f / aspect, f
+    p[2, 2], p[2, 3] = (far + near) / (near - far), 2 * far * near / (near - far)
+    p[3, 2] = -1.0
+    return p
+
+
+def test_camera_from_gl_matches_make_camera_and_projects_like_opengl():
+    eye, target = (0.5, 1.2, 2.5), (0.0, 0.9, 0.1)
+    view, proj = gl_look_at(eye, target), gl_perspective(35.0, 1.0)
+    cam = camera_from_gl(view, proj, 128, 128)
+    ref = make_camera(eye, target, fov_y_deg=35.0, width=128, height=128)
+    np.testing.assert_allclose(cam.K, ref.K, atol=1e-9)
+    np.testing.assert_allclose(cam.extrinsic, ref.extrinsic, atol=1e-9)
+    # A point projected by OpenGL (clip -> NDC -> pixels, y down) lands on the same pixel.
+    points = np.array([[0.1, 1.0, 0.0], [-0.3, 0.7, 0.4], [0.2, 1.4, -0.2]])
+    clip = (proj @ view @ np.c_[points, np.ones(3)].T).T
+    ndc = clip[:, :3] / clip[:, 3:]
+    gl_px = np.stack([(ndc[:, 0] + 1) / 2 * 128, (1 - ndc[:, 1]) / 2 * 128], 1)
+    uv, depth = project(points, cam)
+    np.testing.assert_allclose(uv, gl_px, atol=1e-6)
+    assert (depth > 0).all()
+
+
+def test_camera_from_gl_wide_view_keeps_vertical_fov_and_square_pixels():
+    view, proj = gl_look_at((0, 1, 3), (0, 1, 0)), gl_perspective(40.0, 16 / 9)
+    cam = camera_from_gl(view, proj, 128, 128)
+    assert cam.fx == pytest.approx(cam.fy)
+    assert cam.fov_y_deg == pytest.approx(40.0)
+    with pytest.raises(InputError):
+        ortho = np.eye(4)
+        camera_from_gl(view, ortho, 64, 64)
+
+
+def test_settings_round_trip_keeps_other_keys(tmp_path):
+    (tmp_path / "project.json").write_text(json.dumps({"preset": "smoke", "pipeline": {"x": 1}}))
+    s = GuiSettings(
+        proxy_verts=321,
+        texture_size=512,
+        motion="twirl",
+        camera=CameraPose((1.0, 2.0, 3.0), (0.0, 1.0, 0.0)).as_dict(),
+        camera_path=[CameraPose().as_dict()],
+        body={"height": 1.8},
+        frame=7,
+    )
+    save_settings(tmp_path, s)
+    data = json.loads((tmp_path / "project.json").read_text())
+    assert data["preset"] == "smoke" and data["pipeline"] == {"x": 1}
+    back = load_settings(tmp_path)
+    assert back == s
+    assert back.camera_pose() == CameraPose((1.0, 2.0, 3.0), (0.0, 1.0, 0.0))
+    assert back.body_shape().height == pytest.approx(1.8)
+
+
+def test_settings_from_bad_dict_fall_back_to_defaults():
+    s = GuiSettings.from_dict(
+        {"proxy_verts": "many", "texture_size": 300, "show_body": 1, "unknown": 5, "frame": 4}
+    )
+    d = GuiSettings()
+    assert (s.proxy_verts, s.texture_size, s.show_body, s.frame) == (
+        d.proxy_verts,
+        d.texture_size,
+        d.show_body,
+        4,
+    )
+    assert GuiSettings.from_dict(None) == d
+    assert GuiSettings(camera={"eye": [1, 2]}).camera_pose() is None
+
+
+def test_interpolate_path_hits_the_keys():
+    a = CameraPose((0, 1, 3), (0, 1, 0), fov_deg=30)
+    b = CameraPose((3, 1, 0), (0, 1, 0), fov_deg=50)
+    path = interpolate_path([a, b], 5)
+    assert path[0] == a and path[-1].eye == b.eye and path[2].fov_deg == pytest.approx(40)
+    assert interpolate_path([a], 3) == [a] * 3
+    with pytest.raises(InputError):
+        interpolate_path([], 3)
+
+
+def test_proxy_plan_and_atlas_only_update():
+    from core.mesh import Mesh
+    from core.proxy import ProxyConfig, derive_proxy
+    from core.proxy.testing import skirt_tube
+
+    v, f = skirt_tube()
+    cfg = ProxyConfig(target_verts=150, texture_size=128, hausdorff_samples=500)
+    assert proxy_plan(None, cfg) == "full"
+    assert proxy_plan(cfg, cfg) == "none"
+    assert proxy_plan(cfg, ProxyConfig(target_verts=150, texture_size=512)) != "none"
+    bigger = ProxyConfig(target_verts=150, texture_size=512, hausdorff_samples=500)
+    assert proxy_plan(cfg, bigger) == "atlas"
+    assert proxy_plan(cfg, ProxyConfig(target_verts=200, hausdorff_samples=500)) == "full"
+    result = derive_proxy(Mesh(np.asarray(v, np.float32), np.asarray(f, np.int64)), cfg)
+    again = reatlas(result, 512)
+    assert again.report["uv"]["texture_size"] == 512
+    np.testing.assert_array_equal(again.positions.vertices, result.positions.vertices)
+    np.testing.assert_array_equal(again.proxy.vertices, again.positions.vertices[again.seam_map])
+    assert again.report["distance"] == result.report["distance"]
+    image = atlas_image(again.proxy.uvs, again.proxy.faces, 96)
+    assert image.shape == (96, 96, 3) and image.std() > 10
+
+
+def test_loss_plot_reads_training_logs(tmp_path):
+    log = tmp_path / "joint2coarse_loss.csv"
+    rows = "\n".join(f"{i},motion,0,{1 / (i + 1)},{1.2 / (i + 1)},3.0" for i in range(1, 30))
+    log.write_text("step,stage,epoch,train_loss,val_loss,val_mean_mm\n" + rows + "\n")
+    image = loss_plot({"joint2coarse": log, "renderer": tmp_path / "missing.csv"}, 200, 120)
+    assert image.shape == (120, 200, 3) and image.std() > 5
+    assert loss_plot({"x": tmp_path / "missing.csv"}) is None
+
+
+def test_worker_coalesces_and_cancels():
+    import threading
+
+    posted = []
+    worker = Worker(lambda fn: posted.append(fn))
+    gate = threading.Event()
+    worker.submit(gate.wait, key="block")
+    ran = []
+    for k in range(5):
+        worker.submit(lambda k=k: ran.append(k) or k, key="slider")
+    gate.set()
+    for _ in range(200):
+        if worker.idle:
+            break
+        threading.Event().wait(0.01)
+    assert ran == [4]  # only the newest waiting job of a key runs
+    token = CancelToken()
+    errors = []
+    worker.submit(lambda: (token.cancel(), token.check()), on_error=errors.append)
+    for _ in range(200):
+        if worker.idle:
+            break
+        threading.Event().wait(0.01)
+    for fn in posted:
+        fn()
+    assert errors and type(errors[0]).__name__ == "Cancelled"
+    worker.stop()
+
+
+def test_eta_counts_stages():
+    now = [0.0]
+    eta = Eta(2, clock=lambda: now[0])
+    assert eta.seconds_left() is None
+    now[0] = 10.0
+    eta.update(1, 2)
+    assert eta.progress == pytest.approx(0.25)
+    assert eta.seconds_left() == pytest.approx(30.0)
+    eta.stage_done()
+    assert eta.progress == pytest.approx(0.5)
+
+
+# ----------------------------------------------------------------------- the real window
+
+
+@pytest.fixture(scope="module")
+def tour(smoke_project, tmp_path_factory):
+    """Run ``dng gui PROJECT --tour`` once on a copy of the smoke project (the tour saves
+    window settings into project.json, so the shared project is not touched)."""
+    root = tmp_path_factory.mktemp("gui")
+    project = root / "project"
+    shutil.copytree(smoke_project, project)
+    out = root / "tour"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "app.cli", "gui", str(project), "--tour", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    report_file = out / "tour.json"
+    assert report_file.is_file(), proc.stderr[-4000:]
+    report = json.loads(report_file.read_text())
+    assert "failure" not in report, report["failure"]
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return report, out
+
+
+@pytest.mark.gui
+def test_window_opens_and_derives_the_proxy(tour):
+    report, out = tour
+    assert report["window_open_s"] > 0
+    assert report["garment_vertices"] > 1000
+    assert report["proxy_first_plan"] == "full"
+    assert report["proxy_verts_plan"] == "full"
+    assert report["proxy_texture_plan"] == "atlas"  # only the atlas re-ran
+    assert report["proxy_report"]["texture_size"] == 512
+    assert report["proxy_report"]["hausdorff_mm"] > 0
+    for name in ("gui-garment.png", "gui-proxy.png"):
+        assert (out / name).stat().st_size > 10_000
+
+
+@pytest.mark.gui
+def test_live_neural_render_follows_the_camera(tour):
+    from PIL import Image
+
+    report, out = tour
+    check = report["camera_check"]
+    assert check["max_extrinsic_diff"] < 1e-4 and check["max_K_diff"] < 1e-2
+    a = np.asarray(Image.open(out / "live-a.png"), np.float32)
+    b = np.asarray(Image.open(out / "live-b.png"), np.float32)
+    assert a.shape == b.shape == (128, 128, 3)
+    assert a.std() > 5  # not blank
+    assert np.abs(a - b).mean() > 2  # another camera, another picture
+    stepped = report["stepped"]
+    assert stepped["frames_advanced"] == 3 and stepped["renders"] >= 3
+    bench = report["live_benchmark"]
+    assert bench["size"] == 128 and bench["frames"] == 20 and bench["fps"] > 0
+
+
+@pytest.mark.gui
+def test_errors_export_and_settings(tour):
+    report, out = tour
+    assert "nonexistent" in report["error_shown"]
+    assert report["usable_after_error"]
+    assert (out / "gui-error.png").stat().st_size > 10_000
+    assert report["gif"] and report["obj"]
+    restored, saved = report["restored"], report["saved_settings"]
+    assert restored["frame"] == saved["frame"] == 3
+    assert restored["motion"] == saved["motion"] == report["motion"]
+    assert restored["camera_path_keys"] == 2
+    assert restored["eye_diff"] < 1e-3 and restored["target_diff"] < 1e-3
