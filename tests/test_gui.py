@@ -201,6 +201,11 @@ def test_eta_counts_stages():
 
 
 # ----------------------------------------------------------------------- the real window
+#
+# Marked slow as well as gui, so the default test command (CI) does not run them: under Xvfb's
+# software Vulkan (lavapipe) the window can stall for minutes once playback frames are drawn
+# (docs/gui.md), and on a busy machine the tour then passes its 10-minute limit (seen in a CI
+# run from a fresh clone). Run them with ``./studio test -m "gui and slow"``.
 
 
 @pytest.fixture(scope="module")
@@ -229,6 +234,7 @@ def tour(smoke_project, tmp_path_factory):
 
 
 @pytest.mark.gui
+@pytest.mark.slow
 def test_window_opens_and_derives_the_proxy(tour):
     report, out = tour
     assert report["window_open_s"] > 0
@@ -243,6 +249,7 @@ def test_window_opens_and_derives_the_proxy(tour):
 
 
 @pytest.mark.gui
+@pytest.mark.slow
 def test_live_neural_render_follows_the_camera(tour):
     from PIL import Image
 
@@ -261,6 +268,7 @@ def test_live_neural_render_follows_the_camera(tour):
 
 
 @pytest.mark.gui
+@pytest.mark.slow
 def test_errors_export_and_settings(tour):
     report, out = tour
     assert "nonexistent" in report["error_shown"]
