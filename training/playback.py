@@ -192,6 +192,7 @@ class Playback:
         self._body_frames: np.ndarray | None = None
         self._j2c_ms = 0.0
         self._last: tuple | None = None  # (t, camera, FrameState) of the last render
+        self._sim_targets: dict = {}  # motion name -> SimCache or None
         self.last_timings: dict[str, float] = {}
 
     # -- the motion --------------------------------------------------------------------------
@@ -283,8 +284,10 @@ class Playback:
         name = name or (None if self.motion is None else self.motion.meta.get("project_motion"))
         if not name:
             return None
-        cache = self.project.path(f"sim/{name}-target", "cache.npz")
-        return load_cache(cache) if cache.is_file() else None
+        if name not in self._sim_targets:  # read once: a detailed cache is 100+ MB
+            cache = self.project.path(f"sim/{name}-target", "cache.npz")
+            self._sim_targets[name] = load_cache(cache) if cache.is_file() else None
+        return self._sim_targets[name]
 
     # -- cameras and images ------------------------------------------------------------------
 
