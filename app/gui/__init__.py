@@ -20,6 +20,5 @@ def run(project=None, *, width: int = 1500, height: int = 940) -> int:
 
     app = gui.Application.instance
     app.initialize()
-    Studio(project, width=width, height=height)
-    app.run()
+    Studio(project, width=width, height=height).run_loop()
     return 0

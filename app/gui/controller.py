@@ -7,8 +7,14 @@ Threads (STYLE #8): widgets are touched only on the main thread. Work runs on th
   loading, motions, live neural renders (coalesced: the newest camera/frame wins), exports;
 - ``jobs``: pipeline stages (simulation, data set, training), fine-tuning; cancellable.
 
-Results come back through :meth:`Studio.post` (``gui.Application.post_to_main_thread``). The
-viewer meets the renderer through one call, ``Playback.render(t, camera)`` (STYLE #9).
+Results come back through :meth:`Studio.post` into an inbox that the main loop
+(:meth:`Studio.run_loop`: ``run_one_tick`` then :meth:`Studio.service`) empties between ticks;
+the play clock runs there too. Nothing calls back into Python from inside Open3D's tick but
+input events: under software Vulkan, geometry and widget updates made from callbacks that
+Open3D runs inside its tick (``post_to_main_thread``, ``set_on_tick_event``) stalled the window
+for 5-230 s whenever another thread held the GIL (a live render, a proxy derivation); the
+same updates made between ticks did not (docs/gui.md). The viewer meets the renderer through
+one call, ``Playback.render(t, camera)`` (STYLE #9).
 
 Driver API (tests, the tour, scripts): :meth:`open_project`, :meth:`load_garment`,
 :meth:`derive_proxy`, :meth:`load_motion`, :meth:`play`, :meth:`pause`, :meth:`step`,
@@ -20,6 +26,7 @@ Driver API (tests, the tour, scripts): :meth:`open_project`, :meth:`load_garment
 from __future__ import annotations
 
 import os
+import queue
 import threading
 import time
 import traceback
@@ -56,14 +63,17 @@ from app.gui.window import COLOURS, StudioWindow
 from app.gui.workers import CancelToken, Worker
 from core.errors import InputError
 
-#: Main-thread ticks per second (playback clock, camera-change detection, job progress).
+#: Play-clock / job-progress updates per second at most (in :meth:`Studio.service`).
 TICK_HZ = 30
-#: While playing, the 3D view and the live image are redrawn at most this often. Filament
-#: queues every frame it is given on its render thread and never drops one; with software
-#: Vulkan (Mesa lavapipe) on a busy machine a frame can cost more than a tick, the queue then
-#: grows and the window stops answering (the next ImGui buffer resize waits for the whole
-#: queue). Neural renders still run as fast as the worker makes them; the newest is shown.
-PLAY_REDRAW_HZ = 10.0
+#: While playing, the 3D view and the live image are redrawn at most this often (frames per
+#: second). Filament draws every frame it is given and never drops one; under software Vulkan
+#: (Mesa lavapipe) a frame of the playback scene costs 0.1-0.3 s on 2 busy cores, and frames
+#: asked for faster than that queue up: 20 s of play at 15 Hz left 127 s of frames to draw,
+#: paid at the next dialog. No fence is possible from Python without a callback inside
+#: Open3D's tick, which stalls (see the module docstring). Neural renders run as fast as the
+#: playback worker makes them; the newest is shown. ``DNG_GUI_PLAY_HZ`` overrides it (a GPU
+#: draws far faster).
+PLAY_REDRAW_HZ = float(os.environ.get("DNG_GUI_PLAY_HZ", "4"))
 #: While playing, the reference (ground-truth) image is redrawn at most this often (s).
 REFERENCE_EVERY_S = 0.5
 #: Procedural kinds offered in the motion list (``core.motion.procedural.PROCEDURAL_KINDS``;
@@ -95,6 +105,7 @@ class Studio:
         self.project: Path | None = None
         self.closed = False
         self._lock = threading.Lock()
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()  # main-thread work (post)
         self._motion_items: list[str] = []
         self._body_items: list[str] = []
         self.job_name = ""
@@ -143,6 +154,9 @@ class Studio:
         self._last_view = None
         self._last_reference = 0.0
         self._last_redraw = 0.0
+        self._last_tick = 0.0
+        self.play_frames_shown = 0  # 3D-view frames shown while playing (tests, benchmarks)
+        self.live_frames_shown = 0  # live neural renders put on the screen
         self._shown_live = None  # newest live render not shown yet (while playing)
         self._live_disabled_reason = ""
 
@@ -159,10 +173,7 @@ class Studio:
         self.open_seconds: float | None = None
         self._apply_settings_to_widgets()
         self.post(self._mark_open)
-        self._wake = threading.Event()
         self.view.scene.set_on_mouse(self._on_mouse)
-        self._clock = threading.Thread(target=self._clock_loop, name="clock", daemon=True)
-        self._clock.start()
         if project is not None:
             self.open_project(project)
         else:
@@ -171,11 +182,20 @@ class Studio:
     # ------------------------------------------------------------------ threads and the loop
 
     def post(self, fn) -> None:
-        """Run ``fn`` on the main thread; an exception becomes an error dialog."""
+        """Run ``fn`` on the main thread at the next :meth:`service` (any thread may call
+        this); an exception becomes an error dialog."""
         with self._lock:
             self._pending += 1
+        self._inbox.put(fn)
 
-        def run():
+    def service(self) -> None:
+        """Main-thread work between two Open3D ticks: what workers posted, then the play
+        clock and job progress (at most ``TICK_HZ`` times a second)."""
+        while True:
+            try:
+                fn = self._inbox.get_nowait()
+            except queue.Empty:
+                break
             try:
                 if not self.closed:
                     fn()
@@ -185,45 +205,39 @@ class Studio:
             finally:
                 with self._lock:
                     self._pending -= 1
+        now = time.perf_counter()
+        if self.closed or now - self._last_tick < 1.0 / TICK_HZ:
+            return
+        self._last_tick = now
+        if self.playing and self.num_frames:
+            self._play_tick(now)
+        if self.job_running:
+            self._update_job_widgets()
 
-        self.app.post_to_main_thread(self.view.window, run)
+    def run_loop(self) -> None:
+        """The window's main loop (``dng gui``): Open3D's tick, then :meth:`service`, until
+        the window is closed."""
+        while self.app.run_one_tick():
+            self.service()
 
     def _mark_open(self) -> None:
         self.open_seconds = process_age()
 
-    def _clock_loop(self) -> None:
-        """Posts :meth:`_tick` while something moves (playing, a job running), waiting for each
-        tick to run before the next: the main thread is never flooded, and an idle window is
-        not redrawn at all (continuous redraws are what software rendering can least afford)."""
-        while not self.closed:
-            time.sleep(1.0 / TICK_HZ)
-            if not (self.playing or self.job_running) or self.closed:
-                self._wake.wait(0.5)
-                self._wake.clear()
-                continue
-            done = threading.Event()
-
-            def tick(done=done):
-                try:
-                    self._tick()
-                finally:
-                    done.set()
-
-            self.post(tick)
-            done.wait(5.0)
-
-    def _tick(self) -> None:
-        if self.playing and self.num_frames:
-            now = time.perf_counter()
-            t = self._play_position()
-            if t != self.frame and now - self._last_redraw >= 1.0 / PLAY_REDRAW_HZ:
-                self._last_redraw = now
-                self._show_frame(t)
-                if self._shown_live is not None:
-                    self._show_live(*self._shown_live)
-                    self._shown_live = None
-        if self.job_running:
-            self._update_job_widgets()
+    def _play_tick(self, now: float) -> None:
+        """Show the play clock's frame and the newest live render, once the previous play
+        frame is drawn and at most ``PLAY_REDRAW_HZ`` times a second."""
+        if now - self._last_redraw < 1.0 / PLAY_REDRAW_HZ:
+            return
+        t = self._play_position()
+        if t == self.frame and self._shown_live is None:
+            return
+        self._last_redraw = now
+        if t != self.frame:
+            self._show_frame(t)
+            self.play_frames_shown += 1
+        if self._shown_live is not None:
+            self._show_live(*self._shown_live)
+            self._shown_live = None
 
     def _play_position(self) -> int:
         """The frame the play clock is at now."""
@@ -258,6 +272,7 @@ class Studio:
         end = time.perf_counter() + seconds
         while time.perf_counter() < end:
             self.app.run_one_tick()
+            self.service()
             time.sleep(0.002)
 
     def wait_idle(self, timeout: float = 120.0, settle: float = 0.1) -> None:
@@ -266,6 +281,7 @@ class Studio:
         quiet_since = None
         while time.perf_counter() < end:
             self.app.run_one_tick()
+            self.service()
             if self.idle:
                 quiet_since = quiet_since or time.perf_counter()
                 if time.perf_counter() - quiet_since >= settle:
@@ -723,7 +739,6 @@ class Studio:
         self.playing = True
         self._play_start = (time.perf_counter(), self.frame)
         self.view.set_playing(True)
-        self._wake.set()
 
     def pause(self) -> None:
         self.playing = False
@@ -839,6 +854,7 @@ class Studio:
         self._show_live(t, image, timings)
 
     def _show_live(self, t, image, timings) -> None:
+        self.live_frames_shown += 1
         shown = [image]
         if self.settings.show_ground_truth and self.reference_image is not None:
             if self.reference_image.shape == image.shape:
@@ -941,7 +957,6 @@ class Studio:
         token = CancelToken()
         eta = Eta(len(steps))
         self.job_token, self.job_eta, self.job_running = token, eta, True
-        self._wake.set()
         self.job_log = []
         self.job_name = name
         self.view.job_label.text = f"{name}: starting"

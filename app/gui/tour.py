@@ -4,7 +4,7 @@ save a screenshot of each step and the measurements into ``DIR/tour.json``, then
 The GUI tests run it in a subprocess (under Xvfb) and check what it wrote; the screenshots in
 ``docs/`` come from it. Steps: open the window (timed), load a built-in garment, derive the
 proxy and change its texture size (atlas only), open the project, load a motion, live neural
-render from two cameras, stepping frames and the live render's frame rate at 128 px (on its
+render from two cameras, continuous play, stepping frames and the live render's frame rate at 128 px (on its
 worker), the simulated proxy beside Joint2Coarse, an error dialog, pipeline panel, GIF and OBJ
 export, settings saved and restored in a second window.
 """
@@ -17,6 +17,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+#: Seconds of continuous play in the tour.
+PLAY_SECONDS = 4.0
 
 
 def _png(path: Path, image: np.ndarray) -> None:
@@ -65,6 +68,7 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     studio = Studio(None, width=width, height=height)
     while studio.open_seconds is None:
         app.run_one_tick()
+        studio.service()
     report["window_open_s"] = studio.open_seconds
     t0 = time.perf_counter()
 
@@ -141,10 +145,32 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     report["live_image_shape"] = list(image_a.shape)
     report["errors_so_far"] = list(studio.errors)
 
-    # 3. stepping frames, the live render's frame rate at 128 px (on the playback worker).
-    # No screenshots and no continuous play from here on: see docs/gui.md (the 3D view stops
-    # reaching the screen under software Vulkan once the playback scene is shown).
-    note("3. step frames, live render frame rate")
+    # 3. play: the body, the proxy and the live render move; then stepping frames and the
+    # live render's frame rate at 128 px (on the playback worker)
+    note("3. play, step frames, live render frame rate")
+    n3d, nlive, nrender, f0 = (
+        studio.play_frames_shown,
+        studio.live_frames_shown,
+        studio.render_count,
+        studio.frame,
+    )
+    studio.play()
+    t_play = time.perf_counter()
+    studio.pump(PLAY_SECONDS)
+    studio.pause()
+    played = time.perf_counter() - t_play
+    studio.wait_idle()
+    report["play"] = {
+        "seconds": played,
+        "frames_advanced": (studio.frame - f0) % max(studio.num_frames, 1),
+        "view_fps": (studio.play_frames_shown - n3d) / played,
+        "live_shown_fps": (studio.live_frames_shown - nlive) / played,
+        "live_render_fps": (studio.render_count - nrender) / played,
+    }
+    t_shot = time.perf_counter()
+    studio.screenshot(out / "gui-play.png")
+    report["screenshot_after_play_s"] = time.perf_counter() - t_shot
+    note("saved gui-play.png")
     studio.set_show_ground_truth(True)
     studio.wait_idle()
     f0, n0 = studio.frame, studio.render_count

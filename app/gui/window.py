@@ -76,7 +76,16 @@ class StudioWindow:
         # Software rendering (Mesa lavapipe) is what the studio must survive: no tone-mapping,
         # bloom or anti-aliasing passes (they cost more than the meshes and have stalled
         # Filament's render thread for minutes).
-        self.scene.scene.view.set_post_processing(False)
+        view = self.scene.scene.view
+        view.set_post_processing(False)
+        # Filament's default multisampling renders every fragment several times: with it a
+        # frame of the playback scene cost 0.6-0.9 s on lavapipe and frames queued up behind
+        # the play clock until the window froze for minutes (docs/gui.md, measured with
+        # benchmarks/gui_frame.py). One sample, no ambient occlusion, no shadow maps.
+        view.set_sample_count(1)
+        view.set_antialiasing(False, False)
+        view.set_ambient_occlusion(False, False)
+        view.set_shadowing(False, rendering.View.ShadowType.PCF)
         self.scene.scene.set_lighting(
             rendering.Open3DScene.LightingProfile.NO_SHADOWS, (0.3, -0.8, -0.5)
         )
@@ -433,14 +442,17 @@ class StudioWindow:
     def set_lines(
         self, name: str, vertices: np.ndarray, edges: np.ndarray, colour, visible: bool = True
     ) -> None:
+        """Add or replace a wireframe: one-pixel lines in ``colour`` (RGBA)."""
         lines = o3d.geometry.LineSet(
             o3d.utility.Vector3dVector(np.asarray(vertices, np.float64)),
             o3d.utility.Vector2iVector(np.asarray(edges, np.int32)),
         )
+        lines.paint_uniform_color(np.asarray(colour[:3], np.float64))
+        # Plain one-pixel lines, not Open3D's wide-line shader ("unlitLine"): a LineSet in
+        # that shader replaced every play frame stalled lavapipe for 5-230 s within seconds of
+        # playing (a bisection of the playback scene; docs/gui.md).
         mat = rendering.MaterialRecord()
-        mat.shader = "unlitLine"
-        mat.line_width = 1.5 * self.window.scaling
-        mat.base_color = colour
+        mat.shader = "defaultUnlit"
         self._replace(name, lines, mat, visible)
 
     def _replace(self, name: str, geometry, material, visible: bool) -> None:

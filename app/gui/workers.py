@@ -1,5 +1,5 @@
 """Worker threads of the studio window. No Open3D GUI import: results go back through a
-``post(fn)`` callable that the window wires to ``gui.Application.instance.post_to_main_thread``
+``post(fn)`` callable: the studio's inbox, emptied on the main thread between Open3D ticks
 (tests pass a plain function).
 
 - :class:`Worker`: one thread running jobs in order. Jobs submitted under the same ``key`` while
