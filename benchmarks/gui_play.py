@@ -12,7 +12,7 @@ behind them. Prints the 3D-view and live-image frames shown per second, the neur
 made per second on the playback worker, the longest main-loop tick, and both waits.
 ``--burn`` adds a thread that holds the GIL in a Python loop (what a proxy derivation does),
 the condition under which callbacks from inside Open3D's tick stalled the window
-(docs/gui.md). ``DNG_GUI_PLAY_HZ`` sets the play redraw rate being measured.
+(docs/gui.md). ``DNG_GUI_PLAY_HZ`` / ``DNG_GUI_LIVE_HZ`` set the redraw limits being measured.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def main() -> None:
 
     import open3d.visualization.gui as gui
 
-    from app.gui.controller import PLAY_REDRAW_HZ, Studio
+    from app.gui.controller import LIVE_REDRAW_HZ, PLAY_REDRAW_HZ, Studio
 
     app = gui.Application.instance
     app.initialize()
@@ -80,7 +80,10 @@ def main() -> None:
     studio.wait_idle()
     dialog = time.perf_counter() - t
     print(f"project {args.project}, motion {studio.motion_name}, {studio.num_frames} frames")
-    print(f"play redraw rate limit {PLAY_REDRAW_HZ:g} Hz, GIL-holding thread: {args.burn}")
+    print(
+        f"redraw limits while playing: 3D view {PLAY_REDRAW_HZ:g} Hz, live image "
+        f"{LIVE_REDRAW_HZ:g} Hz; GIL-holding thread: {args.burn}"
+    )
     print(f"played {played:.1f} s:")
     print(f"  3D view frames shown   {(studio.play_frames_shown - n3d) / played:6.1f} /s")
     print(f"  live images shown      {(studio.live_frames_shown - nlive) / played:6.1f} /s")

@@ -65,8 +65,7 @@ from core.errors import InputError
 
 #: Play-clock / job-progress updates per second at most (in :meth:`Studio.service`).
 TICK_HZ = 30
-#: While playing, the 3D view and the live image are redrawn at most this often (frames per
-#: second). Filament draws every frame it is given and never drops one; under software Vulkan
+#: While playing, the 3D view is redrawn at most this often (frames per second). Filament draws every frame it is given and never drops one; under software Vulkan
 #: (Mesa lavapipe) a frame of the playback scene costs 0.1-0.3 s on 2 busy cores, and frames
 #: asked for faster than that queue up: 20 s of play at 15 Hz left 127 s of frames to draw,
 #: paid at the next dialog. No fence is possible from Python without a callback inside
@@ -74,6 +73,10 @@ TICK_HZ = 30
 #: playback worker makes them; the newest is shown. ``DNG_GUI_PLAY_HZ`` overrides it (a GPU
 #: draws far faster).
 PLAY_REDRAW_HZ = float(os.environ.get("DNG_GUI_PLAY_HZ", "4"))
+#: While playing, the live neural image is replaced at most this often. A window redraw that
+#: only changes the image is cheap (20 s at 10 Hz left nothing queued: the screenshot after
+#: it took its usual 3.5 s), so it need not wait for the 3D view.
+LIVE_REDRAW_HZ = float(os.environ.get("DNG_GUI_LIVE_HZ", "15"))
 #: While playing, the reference (ground-truth) image is redrawn at most this often (s).
 REFERENCE_EVERY_S = 0.5
 #: Procedural kinds offered in the motion list (``core.motion.procedural.PROCEDURAL_KINDS``;
@@ -154,6 +157,7 @@ class Studio:
         self._last_view = None
         self._last_reference = 0.0
         self._last_redraw = 0.0
+        self._last_live = 0.0
         self._last_tick = 0.0
         self.play_frames_shown = 0  # 3D-view frames shown while playing (tests, benchmarks)
         self.live_frames_shown = 0  # live neural renders put on the screen
@@ -224,18 +228,16 @@ class Studio:
         self.open_seconds = process_age()
 
     def _play_tick(self, now: float) -> None:
-        """Show the play clock's frame and the newest live render, once the previous play
-        frame is drawn and at most ``PLAY_REDRAW_HZ`` times a second."""
-        if now - self._last_redraw < 1.0 / PLAY_REDRAW_HZ:
-            return
-        t = self._play_position()
-        if t == self.frame and self._shown_live is None:
-            return
-        self._last_redraw = now
-        if t != self.frame:
-            self._show_frame(t)
-            self.play_frames_shown += 1
-        if self._shown_live is not None:
+        """Show the play clock's frame at most ``PLAY_REDRAW_HZ`` times a second and the
+        newest live render at most ``LIVE_REDRAW_HZ`` times a second."""
+        if now - self._last_redraw >= 1.0 / PLAY_REDRAW_HZ:
+            t = self._play_position()
+            if t != self.frame:
+                self._last_redraw = now
+                self._show_frame(t)
+                self.play_frames_shown += 1
+        if self._shown_live is not None and now - self._last_live >= 1.0 / LIVE_REDRAW_HZ:
+            self._last_live = now
             self._show_live(*self._shown_live)
             self._shown_live = None
 
@@ -847,7 +849,7 @@ class Studio:
         if ref is not None:
             self.reference_image, self.reference_label = ref
         if self.playing:
-            # shown by the next play tick (at most PLAY_REDRAW_HZ); meanwhile keep rendering
+            # shown by the next play tick (at most LIVE_REDRAW_HZ); meanwhile keep rendering
             self._shown_live = (t, image, timings)
             self.render_now()
             return
