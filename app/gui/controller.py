@@ -65,8 +65,9 @@ from core.errors import InputError
 
 #: Play-clock / job-progress updates per second at most (in :meth:`Studio.service`).
 TICK_HZ = 30
-#: While playing, the 3D view is redrawn at most this often (frames per second). Filament draws every frame it is given and never drops one; under software Vulkan
-#: (Mesa lavapipe) a frame of the playback scene costs 0.1-0.3 s on 2 busy cores, and frames
+#: While playing, the 3D view is redrawn at most this often (frames per second). Filament
+#: draws every frame it is given and never drops one; under software Vulkan (Mesa lavapipe)
+#: a frame of the playback scene costs 0.1-0.3 s on 2 busy cores, and frames
 #: asked for faster than that queue up: 20 s of play at 15 Hz left 127 s of frames to draw,
 #: paid at the next dialog. No fence is possible from Python without a callback inside
 #: Open3D's tick, which stalls (see the module docstring). Neural renders run as fast as the

@@ -78,10 +78,9 @@ class StudioWindow:
         # Filament's render thread for minutes).
         view = self.scene.scene.view
         view.set_post_processing(False)
-        # Filament's default multisampling renders every fragment several times: with it a
-        # frame of the playback scene cost 0.6-0.9 s on lavapipe and frames queued up behind
-        # the play clock until the window froze for minutes (docs/gui.md, measured with
-        # benchmarks/gui_frame.py). One sample, no ambient occlusion, no shadow maps.
+        # Filament's defaults render every fragment several times: a redraw plus a read-back
+        # of this view took 1.8-2.2 s on lavapipe, 0.63 s with one sample, no ambient
+        # occlusion and no shadow maps (docs/gui.md).
         view.set_sample_count(1)
         view.set_antialiasing(False, False)
         view.set_ambient_occlusion(False, False)
