@@ -3,10 +3,10 @@ save a screenshot of each step and the measurements into ``DIR/tour.json``, then
 
 The GUI tests run it in a subprocess (under Xvfb) and check what it wrote; the screenshots in
 ``docs/`` come from it. Steps: open the window (timed), load a built-in garment, derive the
-proxy and change its texture size (atlas only), open the project, load a motion, live neural
-render from two cameras, continuous play, stepping frames and the live render's frame rate at 128 px (on its
-worker), the simulated proxy beside Joint2Coarse, an error dialog, pipeline panel, GIF and OBJ
-export, settings saved and restored in a second window.
+proxy and change its texture size (atlas only), an error dialog, open the project, load a
+motion, live neural render from two cameras, continuous play (with a screenshot after it),
+stepping frames and the live render's frame rate at 128 px (on its worker), the simulated
+proxy beside Joint2Coarse, GIF and OBJ export, settings saved and read back.
 """
 
 from __future__ import annotations
