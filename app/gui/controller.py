@@ -1,11 +1,12 @@
 """The studio's controller: state, worker threads, and the programmatic driver API.
 
-Threads (STYLE #8): widgets are touched only on the main thread. Work runs on three workers:
+Threads (STYLE #8): widgets are touched only on the main thread. Work runs on four workers:
 
 - ``proxy``: garment loading and proxy derivation (slider changes coalesce: the last wins);
 - ``playback``: every call into :class:`training.playback.Playback` (it is not thread-safe):
   loading, motions, live neural renders (coalesced: the newest camera/frame wins), exports;
-- ``jobs``: pipeline stages (simulation, data set, training), fine-tuning; cancellable.
+- ``jobs``: pipeline stages (simulation, data set, training), fine-tuning; cancellable;
+- ``plots``: loss-curve and preview pictures of a running job.
 
 Results come back through :meth:`Studio.post` into an inbox that the main loop
 (:meth:`Studio.run_loop`: ``run_one_tick`` then :meth:`Studio.service`) empties between ticks;

@@ -6,8 +6,6 @@
   one is still waiting replace it (a slider dragged across ten values runs the last one only).
 - :class:`CancelToken`: set by the Cancel button; long jobs call ``check()`` in their progress
   callbacks and stop with :class:`app.gui.model.Cancelled`.
-- :class:`LatestLoop`: a thread that always works on the newest request (live neural render):
-  requests that arrive while it is busy overwrite each other; none queue up.
 """
 
 from __future__ import annotations
@@ -98,52 +96,6 @@ class Worker:
             else:
                 if on_done is not None:
                     self.post(lambda r=result, f=on_done: f(r))
-            finally:
-                with self._cond:
-                    self._busy = False
-
-
-class LatestLoop:
-    """A thread calling ``work(request)`` on the newest request only."""
-
-    def __init__(self, work: Callable[[object], None], name: str = "latest"):
-        self.work = work
-        self._request = None
-        self._has = False
-        self._busy = False
-        self._stop = False
-        self._cond = threading.Condition()
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
-        self._thread.start()
-
-    def request(self, req: object) -> None:
-        with self._cond:
-            self._request, self._has = req, True
-            self._cond.notify()
-
-    @property
-    def idle(self) -> bool:
-        with self._cond:
-            return not self._busy and not self._has
-
-    def stop(self) -> None:
-        with self._cond:
-            self._stop = True
-            self._cond.notify()
-
-    def _loop(self) -> None:
-        while True:
-            with self._cond:
-                while not self._has and not self._stop:
-                    self._cond.wait()
-                if self._stop:
-                    return
-                req, self._request, self._has = self._request, None, False
-                self._busy = True
-            try:
-                self.work(req)
-            except BaseException:  # noqa: BLE001 - work reports its own errors
-                traceback.print_exc()
             finally:
                 with self._cond:
                     self._busy = False
