@@ -31,6 +31,7 @@ from training.joint2coarse import (
     motion_descriptors,
     predict_proxy,
     push_out_of_capsules,
+    reconstruct_proxy,
     to_root_frame,
     train_joint2coarse,
     vertex_errors,
@@ -175,6 +176,28 @@ def test_training_beats_mean_shape_and_writes_files(trained, clips):
     assert_close(
         predict_proxy(net, clip.joints, clip.root_rotations, batch_size=7), pred, atol=1e-5
     )
+
+
+def test_autoencoder_bound_is_tight_on_known_shapes_and_loose_on_foreign_ones(trained, clips):
+    net, clip = trained.net, clips[1]
+    known = vertex_errors(
+        reconstruct_proxy(net, clip.proxy, clip.joints, clip.root_rotations), clip.proxy
+    )
+    # Validation frames are seen by no stage: the autoencoder still reproduces them closely.
+    assert known.mean_mm < 0.2 * trained.baseline.mean_mm
+    # The skirt blown 30 cm sideways in the root frame is a shape no training frame had.
+    blown = clip.proxy.copy()
+    blown[..., 0] += 0.3 * (blown[..., 1] < np.median(blown[..., 1]))
+    foreign = vertex_errors(reconstruct_proxy(net, blown, clip.joints, clip.root_rotations), blown)
+    assert foreign.mean_mm > 5 * known.mean_mm
+    was = net.training
+    net.train()  # dropout on: the call still evaluates in eval mode and puts the mode back
+    again = reconstruct_proxy(net, clip.proxy, clip.joints, clip.root_rotations)
+    assert net.training
+    net.train(was)
+    assert vertex_errors(again, clip.proxy).mean_mm == pytest.approx(known.mean_mm, rel=1e-5)
+    with pytest.raises(InputError, match="proxy must be"):
+        reconstruct_proxy(net, clip.proxy[:, :-1], clip.joints, clip.root_rotations)
 
 
 def test_same_seed_same_weights_and_resume_equals_uninterrupted(clips, tmp_path):

@@ -46,6 +46,44 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]
     md = (out / "report.md").read_text()
     assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
+    assert "the shape autoencoder on its simulated shapes" in md
+    for m in j2c["motions"].values():
+        assert 0 < m["autoencoder_error_mm"]["mean_mm"] < m["autoencoder_error_mm"]["p95_mm"]
+    # The time-left estimate has one expected cost per stage the demo ran, in its order.
+    from training.demo import stage_costs
+
+    costs = stage_costs(PRESETS["smoke"])
+    assert len(costs) == len(report["stage_seconds"])
+    names = list(report["stage_seconds"])
+    assert names[0] == "motions" and names[-1].startswith("videos")
+
+
+def test_time_left_follows_the_pace_of_the_stages_that_ran():
+    import io
+
+    from training.demo import _Progress
+
+    now = [0.0]
+
+    def work(seconds):
+        def run():
+            now[0] += seconds
+            return seconds
+
+        return run
+
+    log = io.StringIO()
+    progress = _Progress([10.0, 30.0, 60.0, 100.0], out=log, clock=lambda: now[0])
+    progress.stage("reused", work(0.5))  # under a tenth of its cost: sets no pace
+    progress.stage("a", work(60.0))  # twice the expected 30 s
+    progress.stage("b", work(120.0))
+    assert progress.seconds_left() == pytest.approx(2.0 * 100.0)
+    assert progress.stage("c", work(1.0)) == 1.0
+    lines = log.getvalue().splitlines()
+    assert lines[0] == "[1/4] reused (0.0 min in, about 3.3 min left)"  # nominal pace at first
+    assert lines[1] == "[2/4] a (0.0 min in, about 3.2 min left)"
+    assert lines[3] == "[4/4] c (3.0 min in, about 3.3 min left)"
+    assert progress.stage_times == {"reused": 0.5, "a": 60.0, "b": 120.0, "c": 1.0}
 
 
 def test_rerun_reuses_every_stage(smoke):
@@ -137,6 +175,26 @@ def test_train_renderer_cli_with_new_settings(smoke, tmp_path):
     r = subprocess.run(dng + ["--preset", "huge"], capture_output=True, text=True)
     assert r.returncode == 2 and "unknown renderer preset 'huge'" in r.stderr
 
+    r = subprocess.run(
+        dng + ["--steps", "6", "--set", "w_gan=0", "--set", "w_fm=0"],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    config = project_config(Project(copy))
+    assert config.renderer_overrides == {"w_gan": 0, "w_fm": 0}
+    report = json.loads((copy / "renderer" / "report.json").read_text())
+    assert report["config"]["w_gan"] == 0 and report["config"]["w_fm"] == 0
+    assert report["steps"] == 6 and report["resumed_at_step"] == 0  # new settings: a new run
+    for bad, message in (
+        ("w_gann=0", "unknown renderer setting(s) ['w_gann']"),
+        ("w_gan=-1", "w_gan=-1 must be a finite number >= 0"),
+        ("w_gan", "--set expects KEY=VALUE"),
+    ):
+        r = subprocess.run(dng + ["--set", bad], capture_output=True, text=True)
+        assert r.returncode == 2 and message in r.stderr, (bad, r.stderr)
+    assert project_config(Project(copy)).renderer_overrides["w_gan"] == 0  # refused: unchanged
+
 
 def test_cli_commands_on_the_project(smoke, tmp_path, bvh_dir):
     out, _ = smoke
@@ -179,3 +237,25 @@ def test_settings_round_trip_and_errors(tmp_path):
     proj.save_settings({"pipeline": {"garment": "x"}})
     with pytest.raises(InputError, match="project.json: malformed pipeline settings"):
         project_config(proj)
+
+
+def test_renderer_overrides_reach_ours_and_dnr_with_our_loss_only():
+    from dataclasses import replace
+
+    from training.pipeline import baseline_config, renderer_config
+
+    quick = preset("quick")
+    ours = renderer_config(quick)
+    assert (ours.w_l1, ours.w_fm, ours.w_gan) == (10.0, 1.0, 0.1)
+    gan = baseline_config(quick, "dnr-gan")
+    assert (gan.w_l1, gan.w_perceptual, gan.w_fm, gan.w_gan) == (10.0, 10.0, 1.0, 0.1)
+    assert baseline_config(quick, "dnr").w_gan == 0.0  # L1 only, as the paper's DNR
+    assert baseline_config(quick, "pix2pix").w_gan == 1.0  # its own loss
+    listed = replace(quick, renderer_overrides={"texture_sizes": [64, 32], "steps": 7})
+    cfg = renderer_config(listed)
+    assert cfg.texture_sizes == (64, 32) and cfg.steps == 7  # JSON lists become tuples
+    assert baseline_config(listed, "dnr").steps == 7  # the baselines train as many steps
+    with pytest.raises(InputError, match=r"unknown renderer setting\(s\) \['w_gann'\]"):
+        renderer_config(replace(quick, renderer_overrides={"w_gann": 0}))
+    with pytest.raises(InputError, match="w_gan=-1 must be a finite number"):
+        renderer_config(replace(quick, renderer_overrides={"w_gan": -1}))

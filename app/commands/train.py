@@ -39,6 +39,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("sim", "joint2coarse"),
         help="proxy to train on: simulated (default) or Joint2Coarse's prediction",
     )
+    r.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        metavar="KEY=VALUE",
+        help=(
+            "change one renderer setting from the preset, e.g. --set w_gan=0 --set w_fm=0 "
+            "(values read as JSON: numbers, true/false, lists); kept in the project's settings"
+        ),
+    )
     r.set_defaults(handler=run_renderer)
     b = what.add_parser(
         "baselines",
@@ -86,6 +96,11 @@ def _config_with(args: argparse.Namespace):
         changes["renderer_source"] = args.source
     if getattr(args, "kinds", None):
         changes["baselines"] = tuple(args.kinds)
+    if getattr(args, "overrides", None):
+        changes["renderer_overrides"] = {
+            **config.renderer_overrides,
+            **dict(parse_setting(item) for item in args.overrides),
+        }
     config = replace(config, **changes)
     from training.pipeline import baseline_config, renderer_config
 
@@ -97,6 +112,26 @@ def _config_with(args: argparse.Namespace):
         settings["pipeline"] = config.as_params()
         project.save_settings(settings)
     return project, config
+
+
+def parse_setting(item: str) -> tuple[str, object]:
+    """``"KEY=VALUE"`` -> (key, value), the value read as JSON when it parses, else a string.
+
+    >>> parse_setting("w_gan=0.1")
+    ('w_gan', 0.1)
+    """
+    import json
+
+    from core.errors import InputError
+
+    key, sep, text = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise InputError(f"--set expects KEY=VALUE, got {item!r}")
+    try:
+        return key, json.loads(text)
+    except json.JSONDecodeError:
+        return key, text
 
 
 def run_renderer(args: argparse.Namespace) -> int:

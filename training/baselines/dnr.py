@@ -16,7 +16,9 @@ renderer outputs the final image.
 - ``dnr-gan``: our loss on the same network: ``10 (L1 + perceptual) + 5 FM + 0.5 GAN`` with the
   temporal PatchGAN on consecutive-frame pairs (``[R_t, I_{t-1}]``, ``[I_{t+1}, R_t]`` fake;
   the ground-truth pairs real), as :mod:`training.renderer.train` trains our renderer. The
-  perceptual loss is on only with a VGG19 weights file (``vgg_path``).
+  perceptual loss is on only with a VGG19 weights file (``vgg_path``). In a project the
+  weights are the ones our renderer trains with, overrides included
+  (:func:`training.pipeline.baseline_config`).
 """
 
 from __future__ import annotations

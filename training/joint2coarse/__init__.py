@@ -7,7 +7,8 @@ Array-level API (the CLI and project folders wrap it):
 - training: :class:`Joint2CoarseClip`, :func:`train_joint2coarse` (resumable);
 - prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream` (on a
   :class:`FrozenForward`: the network as plain matrix products, for one frame at a time);
-- extras: :func:`push_out_of_capsules`, :func:`vertex_errors`.
+- extras: :func:`push_out_of_capsules`, :func:`vertex_errors`, :func:`reconstruct_proxy` (the
+  shape autoencoder's bound on unseen shapes).
 """
 
 from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules
@@ -23,7 +24,12 @@ from training.joint2coarse.descriptor import (
 )
 from training.joint2coarse.metrics import VertexErrors, vertex_errors
 from training.joint2coarse.model import Joint2CoarseNet, load_model, save_model
-from training.joint2coarse.predict import FrozenForward, Joint2CoarseStream, predict_proxy
+from training.joint2coarse.predict import (
+    FrozenForward,
+    Joint2CoarseStream,
+    predict_proxy,
+    reconstruct_proxy,
+)
 from training.joint2coarse.train import (
     Joint2CoarseClip,
     Joint2CoarseTrainResult,
@@ -51,6 +57,7 @@ __all__ = [
     "predict_proxy",
     "prepare_data",
     "push_out_of_capsules",
+    "reconstruct_proxy",
     "save_model",
     "to_root_frame",
     "train_joint2coarse",

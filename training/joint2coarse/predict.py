@@ -15,6 +15,7 @@ from training.joint2coarse.descriptor import (
     from_root_frame,
     heading_rotations,
     motion_descriptors,
+    to_root_frame,
 )
 from training.joint2coarse.model import Joint2CoarseNet
 
@@ -81,6 +82,44 @@ def predict_proxy(
     if capsules is not None:
         out = push_out_of_capsules(out, capsules, radii, margin)
     return out
+
+
+def reconstruct_proxy(
+    net: Joint2CoarseNet, proxy: np.ndarray, joints: np.ndarray, root_rotations: np.ndarray
+) -> np.ndarray:
+    """The shape autoencoder's reconstruction of known proxy shapes (no motion encoder).
+
+    Its error against ``proxy`` bounds what any motion encoder can reach with this decoder:
+    shapes the autoencoder cannot reproduce lie outside what the network learnt from its
+    training clips, whatever the motion.
+
+    Parameters
+    ----------
+    proxy : (T, Vc, 3) float
+        World proxy vertices (a simulation).
+    joints : (T, 20, 3) float32, root_rotations : (T, 3, 3) float32
+        The clip's joints (:func:`joint2coarse_inputs`): they give each frame's root frame.
+
+    Returns
+    -------
+    (T, Vc, 3) float32 world positions.
+    """
+    proxy = np.asarray(proxy)
+    t = check_joint_inputs(joints, root_rotations)
+    if proxy.shape != (t, net.n_vertices, 3):
+        raise InputError(f"proxy must be ({t}, {net.n_vertices}, 3), got {proxy.shape}")
+    origin = np.asarray(joints, np.float64)[:, 0]
+    heading = heading_rotations(root_rotations)
+    local = to_root_frame(proxy, origin, heading).reshape(t, -1).astype(np.float32)
+    was_training = net.training
+    net.eval()
+    try:
+        with torch.inference_mode():
+            z = net.normalise_vertices(torch.from_numpy(local))
+            out = net.denormalise_vertices(net.shape_decoder(net.shape_encoder(z))).numpy()
+    finally:
+        net.train(was_training)
+    return from_root_frame(out, origin, heading).astype(np.float32)
 
 
 class FrozenForward:
