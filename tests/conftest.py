@@ -37,6 +37,20 @@ def bvh_dir() -> Path:
 
 
 @pytest.fixture
+def dng(capsys):
+    """``dng(*args) -> (exit code, stdout, stderr)``: the command line run in this process
+    (arguments may be paths or numbers)."""
+    from app.cli import main
+
+    def run(*argv) -> tuple[int, str, str]:
+        code = main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return run
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)
 

@@ -10,18 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from app.cli import main
-
 
 @pytest.fixture(autouse=True)
 def _one_thread():
     torch.set_num_threads(1)
-
-
-def run(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 # ------------------------------------------------------------------------- pieces
@@ -73,9 +65,9 @@ def test_resized_dataset_and_upsampled_renderer(smoke_project):
     assert out.shape == (1, 3, size, size)
 
 
-def test_trade_bad_project_exits_2(tmp_path, capsys):
+def test_trade_bad_project_exits_2(tmp_path, dng):
     missing = tmp_path / "no-such-project"
-    code, _, err = run(capsys, "bench", "trade", "--project", missing, "--out", tmp_path / "o")
+    code, _, err = dng("bench", "trade", "--project", missing, "--out", tmp_path / "o")
     assert code == 2
     assert str(missing) in err and "not found" in err
 
@@ -86,19 +78,19 @@ def test_trade_bad_project_exits_2(tmp_path, capsys):
     (half / "project.json").write_text(
         json.dumps({"preset": "smoke", "pipeline": PRESETS["smoke"].as_params()})
     )
-    code, _, err = run(capsys, "bench", "trade", "--project", half, "--out", tmp_path / "o")
+    code, _, err = dng("bench", "trade", "--project", half, "--out", tmp_path / "o")
     assert code == 2 and str(half / "dataset") in err
     assert not (tmp_path / "o").exists()
 
 
-def test_trade_rejects_sizes_above_the_project(smoke_project, tmp_path, capsys):
-    code, _, err = run(
-        capsys, "bench", "trade", "--project", smoke_project, "--out", tmp_path / "o",
+def test_trade_rejects_sizes_above_the_project(smoke_project, tmp_path, dng):
+    code, _, err = dng(
+        "bench", "trade", "--project", smoke_project, "--out", tmp_path / "o",
         "--sizes", 128, "--steps", 1,
     )  # fmt: skip
     assert code == 2 and "only downsamples" in err
-    code, _, err = run(
-        capsys, "bench", "trade", "--project", smoke_project, "--out", tmp_path / "o",
+    code, _, err = dng(
+        "bench", "trade", "--project", smoke_project, "--out", tmp_path / "o",
         "--motion", "nope",
     )  # fmt: skip
     assert code == 2 and "no test set for motion 'nope'" in err
@@ -112,12 +104,12 @@ def _finite(v) -> bool:
 
 
 @pytest.mark.slow
-def test_trade_on_smoke_project(smoke_project, tmp_path, capsys):
+def test_trade_on_smoke_project(smoke_project, tmp_path, dng):
     """Two sizes x one width, a few steps, one proxy size, a 3-frame simulation (~2 min)."""
     before = sorted(p.relative_to(smoke_project) for p in smoke_project.rglob("*"))
     out = tmp_path / "trade"
-    code, text, err = run(
-        capsys, "bench", "trade", "--project", smoke_project, "--out", out, "--steps", 3,
+    code, text, err = dng(
+        "bench", "trade", "--project", smoke_project, "--out", out, "--steps", 3,
         "--sizes", 64, 32, "--widths", "8/16", "--proxy-sizes", 300, "--sim-frames", 3,
         "--frames", 2,
     )  # fmt: skip
@@ -151,11 +143,11 @@ def test_trade_on_smoke_project(smoke_project, tmp_path, capsys):
     assert (out / "runs" / "32px-8x16" / "renderer.pt").is_file()
 
 
-def test_trade_quick_run_without_proxy_and_simulation(smoke_project, tmp_path, capsys):
+def test_trade_quick_run_without_proxy_and_simulation(smoke_project, tmp_path, dng):
     """One setting, two steps, no proxy axis, no simulation: the table, JSON and plot."""
     out = tmp_path / "trade"
-    code, text, err = run(
-        capsys, "bench", "trade", "--project", smoke_project, "--out", out, "--steps", 2,
+    code, text, err = dng(
+        "bench", "trade", "--project", smoke_project, "--out", out, "--steps", 2,
         "--sizes", 32, "--widths", "8/16", "--proxy-sizes", "--sim-frames", 0, "--frames", 1,
         "--json",
     )  # fmt: skip
@@ -194,7 +186,7 @@ def _fake(name, code=0, error=None):
     return SimpleNamespace(__name__=f"app.bench.{name}", add_arguments=add_arguments, run=run_bench)
 
 
-def test_bench_all_runs_each_with_defaults(tmp_path, capsys, monkeypatch):
+def test_bench_all_runs_each_with_defaults(tmp_path, dng, monkeypatch):
     from app.bench import all as bench_all
     from core.errors import InputError
 
@@ -207,7 +199,7 @@ def test_bench_all_runs_each_with_defaults(tmp_path, capsys, monkeypatch):
     }
     monkeypatch.setattr(bench_all, "load_benches", lambda names: {n: fakes[n] for n in names})
     out = tmp_path / "all"
-    code, text, err = run(capsys, "bench", "all", "--out", out, "--json")
+    code, text, err = dng("bench", "all", "--out", out, "--json")
     assert code == 1  # two benches failed
     summary = json.loads(text)  # stdout holds only the summary
     assert summary == json.loads((out / "all.json").read_text())
@@ -221,8 +213,8 @@ def test_bench_all_runs_each_with_defaults(tmp_path, capsys, monkeypatch):
     assert args == {"out": str(out / "proxy"), "json": False, "level": 3}
     assert "proxy table" in err  # the benches' own tables went to stderr
 
-    code, text, _ = run(
-        capsys, "bench", "all", "--out", out, "--project", tmp_path, "--only", "trade", "proxy"
+    code, text, _ = dng(
+        "bench", "all", "--out", out, "--project", tmp_path, "--only", "trade", "proxy"
     )
     assert code == 0
     summary = json.loads((out / "all.json").read_text())
@@ -231,5 +223,5 @@ def test_bench_all_runs_each_with_defaults(tmp_path, capsys, monkeypatch):
     assert args["project"] == str(tmp_path) and args["out"] == str(out / "trade")
     assert "trade: exit 0" in text
 
-    code, _, err = run(capsys, "bench", "all", "--out", out, "--only", "nope")
+    code, _, err = dng("bench", "all", "--out", out, "--only", "nope")
     assert code == 2 and "unknown bench" in err

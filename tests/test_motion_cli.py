@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
 from core.motion.bvh import write_bvh
 from core.motion.load import load_motion
 from core.skeleton import CANONICAL_JOINTS
@@ -17,12 +16,6 @@ from tests.data_bvh import cmu_as, tiny_bvh_text
 
 HAS_PROCEDURAL = importlib.util.find_spec("core.motion.procedural") is not None
 HAS_RETARGET = importlib.util.find_spec("core.motion.retarget") is not None
-
-
-def run(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(["motion", *map(str, argv)])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +38,8 @@ def cmu_short(bvh_dir, tmp_path_factory) -> Path:
     return path
 
 
-def test_info_text(capsys, bvh_dir):
-    code, out, err = run(capsys, "info", bvh_dir / "01_01.bvh")
+def test_info_text(dng, bvh_dir):
+    code, out, err = dng("motion", "info", bvh_dir / "01_01.bvh")
     assert code == 0 and not err
     assert "2752 at 120 fps" in out
     assert "standing height: 1.4" in out or "standing height: 1.5" in out
@@ -56,8 +49,8 @@ def test_info_text(capsys, bvh_dir):
     assert "LeftForeArm   <- LeftForeArm" in out
 
 
-def test_info_json_cmu(capsys, bvh_dir):
-    code, out, _ = run(capsys, "info", bvh_dir / "01_01.bvh", "--json")
+def test_info_json_cmu(dng, bvh_dir):
+    code, out, _ = dng("motion", "info", bvh_dir / "01_01.bvh", "--json")
     assert code == 0
     info = json.loads(out)
     assert info["frames"] == 2752 and info["fps"] == 120.0
@@ -72,27 +65,27 @@ def test_info_json_cmu(capsys, bvh_dir):
 @pytest.mark.parametrize(
     "style, up, unit", [("biped", "z", "estimated"), ("mixamo", "y", "cm"), ("rigify", "y", "m")]
 )
-def test_info_json_other_tools(capsys, converted, bvh_dir, style, up, unit):
-    code, out, _ = run(capsys, "info", converted[style], "--json")
+def test_info_json_other_tools(dng, converted, bvh_dir, style, up, unit):
+    code, out, _ = dng("motion", "info", converted[style], "--json")
     assert code == 0
     info = json.loads(out)
     assert len(info["joints"]) == 19 and set(info["joints"]) == set(CANONICAL_JOINTS)
     assert info["up_axis"] == up and info["unit"] == unit and info["rig"] == style
-    _, ref_out, _ = run(capsys, "info", bvh_dir / "01_01.bvh", "--json")
+    _, ref_out, _ = dng("motion", "info", bvh_dir / "01_01.bvh", "--json")
     true_height = json.loads(ref_out)["standing_height_m"]
     if unit != "estimated":
         assert info["standing_height_m"] == pytest.approx(true_height, rel=0.10)
 
 
-def test_info_scale_and_mapping_options(capsys, converted, tmp_path):
+def test_info_scale_and_mapping_options(dng, converted, tmp_path):
     text = converted["rigify"].read_text().replace("JOINT DEF-forearm.L\n", "JOINT Bone08\n")
     odd = tmp_path / "odd.bvh"
     odd.write_text(text)
-    code, _, err = run(capsys, "info", odd)
+    code, _, err = dng("motion", "info", odd)
     assert code == 2 and "LeftForeArm" in err and str(odd) in err
     mapping = tmp_path / "map.json"
     mapping.write_text(json.dumps({"LeftForeArm": "Bone08"}))
-    code, out, _ = run(capsys, "info", odd, "--json", "--mapping", mapping, "--scale", "0.5")
+    code, out, _ = dng("motion", "info", odd, "--json", "--mapping", mapping, "--scale", "0.5")
     assert code == 0
     info = json.loads(out)
     assert info["joints"]["LeftForeArm"] == "Bone08" and info["unit_scale"] == 0.5
@@ -159,7 +152,7 @@ BAD = {
 
 @pytest.mark.parametrize("kind", sorted(BAD))
 @pytest.mark.parametrize("action", ["info", "retarget"])
-def test_bad_input_exit_2_one_line_nothing_written(capsys, tmp_path, kind, action):
+def test_bad_input_exit_2_one_line_nothing_written(dng, tmp_path, kind, action):
     path = tmp_path / f"{kind}.bvh"
     content = _break(kind) if kind != "missing" else None
     if isinstance(content, bytes):
@@ -168,7 +161,7 @@ def test_bad_input_exit_2_one_line_nothing_written(capsys, tmp_path, kind, actio
         path.write_text(content)
     out_path = tmp_path / "out" / "x.bvh"
     argv = ["info", path] if action == "info" else ["retarget", path, "--out", out_path]
-    code, out, err = run(capsys, *argv)
+    code, out, err = dng("motion", *argv)
     assert code == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -176,17 +169,17 @@ def test_bad_input_exit_2_one_line_nothing_written(capsys, tmp_path, kind, actio
     assert not out_path.exists() and not (tmp_path / "out").exists()
 
 
-def test_line_numbers_in_messages(capsys, tmp_path):
+def test_line_numbers_in_messages(dng, tmp_path):
     path = tmp_path / "nan.bvh"
     path.write_text(_break("nan"))
-    _, _, err = run(capsys, "info", path)
+    _, _, err = dng("motion", "info", path)
     assert f"line {_TINY.splitlines().index('2.0 90 0 4.0 0 0 0 6.0 0') + 1}:" in err
 
 
-def test_unknown_rig_lists_every_missing_joint(capsys, tmp_path):
+def test_unknown_rig_lists_every_missing_joint(dng, tmp_path):
     path = tmp_path / "stick.bvh"
     path.write_text(_TINY)
-    _, _, err = run(capsys, "info", path)
+    _, _, err = dng("motion", "info", path)
     for c in ("Head", "LeftArm", "RightForeArm", "LeftHand", "LeftUpLeg", "RightFoot"):
         assert c in err
 
@@ -195,13 +188,13 @@ def test_unknown_rig_lists_every_missing_joint(capsys, tmp_path):
 
 
 @pytest.mark.skipif(not HAS_PROCEDURAL, reason="core.motion.procedural not written yet")
-def test_make_writes_a_loadable_clip(capsys, tmp_path):
+def test_make_writes_a_loadable_clip(dng, tmp_path):
     from core.motion.procedural import PROCEDURAL_KINDS
 
     kind = PROCEDURAL_KINDS[0]
     a, b = tmp_path / "a.bvh", tmp_path / "b.bvh"
     for out in (a, b):
-        code, _, err = run(capsys, "make", kind, "--frames", 40, "--fps", 25, "--seed", 3,
+        code, _, err = dng("motion", "make", kind, "--frames", 40, "--fps", 25, "--seed", 3,
                            "--out", out, "--shape", "height=1.8")  # fmt: skip
         assert code == 0, err
     assert a.read_bytes() == b.read_bytes()  # same seed, same file
@@ -220,20 +213,20 @@ def test_make_writes_a_loadable_clip(capsys, tmp_path):
         (["KIND", "--frames", "10", "--shape", "height=9"], "height"),
     ],
 )
-def test_make_bad_arguments(capsys, tmp_path, argv, problem):
+def test_make_bad_arguments(dng, tmp_path, argv, problem):
     from core.motion.procedural import PROCEDURAL_KINDS
 
     argv = [PROCEDURAL_KINDS[0] if a == "KIND" else a for a in argv]
     out = tmp_path / "m.bvh"
-    code, _, err = run(capsys, "make", *argv, "--out", out)
+    code, _, err = dng("motion", "make", *argv, "--out", out)
     assert code == 2 and problem in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
 
 
 @pytest.mark.skipif(not HAS_RETARGET, reason="core.motion.retarget not written yet")
-def test_retarget_cmu_onto_the_mannequin(capsys, tmp_path, cmu_short):
+def test_retarget_cmu_onto_the_mannequin(dng, tmp_path, cmu_short):
     out = tmp_path / "r.bvh"
-    code, stdout, err = run(capsys, "retarget", cmu_short, "--out", out, "--fps", 30,
+    code, stdout, err = dng("motion", "retarget", cmu_short, "--out", out, "--fps", 30,
                             "--shape", "height=1.8")  # fmt: skip
     assert code == 0, err
     m = load_motion(out)
@@ -244,9 +237,9 @@ def test_retarget_cmu_onto_the_mannequin(capsys, tmp_path, cmu_short):
 
 
 @pytest.mark.skipif(not HAS_RETARGET, reason="core.motion.retarget not written yet")
-def test_retarget_z_up_biped_lands_upright(capsys, tmp_path, converted):
+def test_retarget_z_up_biped_lands_upright(dng, tmp_path, converted):
     out = tmp_path / "r.bvh"
-    code, _, err = run(capsys, "retarget", converted["biped"], "--out", out)
+    code, _, err = dng("motion", "retarget", converted["biped"], "--out", out)
     assert code == 0, err
     m = load_motion(out)
     pos = m.joint_positions()

@@ -8,28 +8,20 @@ import numpy as np
 import pytest
 import torch
 
-from app.cli import main
-
 
 @pytest.fixture(autouse=True)
 def _one_thread():
     torch.set_num_threads(1)
 
 
-def run(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 RENDER = ("--frames", 3, "--size", 64)
 
 
-def test_render_gif_png_mp4(smoke_project, tmp_path, capsys):
+def test_render_gif_png_mp4(smoke_project, tmp_path, dng):
     from PIL import Image
 
-    code, out, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", *RENDER, "--out", tmp_path / "a.gif"
+    code, out, err = dng(
+        "render", smoke_project, "--motion", "walk", *RENDER, "--out", tmp_path / "a.gif"
     )
     assert code == 0, err
     assert "3 frames, 64x64" in out and "ms" in out
@@ -37,8 +29,8 @@ def test_render_gif_png_mp4(smoke_project, tmp_path, capsys):
         assert g.n_frames == 3 and g.size == (64, 64)
 
     frames = tmp_path / "frames"
-    code, out, err = run(
-        capsys, "render", smoke_project, "--motion", "dance", *RENDER,
+    code, out, err = dng(
+        "render", smoke_project, "--motion", "dance", *RENDER,
         "--camera", "front", "--side-by-side", "--out", f"{frames}/",
     )  # fmt: skip
     assert code == 0, err
@@ -49,8 +41,8 @@ def test_render_gif_png_mp4(smoke_project, tmp_path, capsys):
     assert "simulation" in out
 
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
-    code, out, err = run(
-        capsys, "render", smoke_project, "--motion", "twirl", *RENDER,
+    code, out, err = dng(
+        "render", smoke_project, "--motion", "twirl", *RENDER,
         "--fps", 12, "--out", tmp_path / "a.mp4",
     )  # fmt: skip
     assert code == 0, err
@@ -60,7 +52,7 @@ def test_render_gif_png_mp4(smoke_project, tmp_path, capsys):
     assert sum(1 for _ in reader) == 3
 
 
-def test_render_camera_file(smoke_project, tmp_path, capsys):
+def test_render_camera_file(smoke_project, tmp_path, dng):
     from PIL import Image
 
     from core.camera import camera_to_dict, make_camera
@@ -72,8 +64,8 @@ def test_render_camera_file(smoke_project, tmp_path, capsys):
     path = tmp_path / "path.json"
     path.write_text(json.dumps(cams))
     out_dir = tmp_path / "f"
-    code, _, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", "--frames", 3,
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", "--frames", 3,
         "--camera", path, "--out", out_dir,
     )  # fmt: skip
     assert code == 0, err
@@ -83,8 +75,8 @@ def test_render_camera_file(smoke_project, tmp_path, capsys):
     # Frame 2 holds the list's last camera: the same camera as frame 1.
     single = tmp_path / "one.json"
     single.write_text(json.dumps(cams[0]))
-    code, _, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", "--frames", 2,
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", "--frames", 2,
         "--camera", single, "--size", 20, "--out", tmp_path / "one.gif",
     )  # fmt: skip
     assert code == 0, err
@@ -92,35 +84,33 @@ def test_render_camera_file(smoke_project, tmp_path, capsys):
         assert g.size == (20, 16)
 
 
-def test_render_bad_inputs(smoke_project, tmp_path, capsys):
+def test_render_bad_inputs(smoke_project, tmp_path, dng):
     missing = tmp_path / "no-project"
-    code, _, err = run(capsys, "render", missing, "--motion", "walk", "--out", tmp_path / "x.gif")
+    code, _, err = dng("render", missing, "--motion", "walk", "--out", tmp_path / "x.gif")
     assert code == 2 and str(missing) in err
     model = tmp_path / "nothing.pt"
-    code, _, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", "--renderer", model,
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", "--renderer", model,
         "--out", tmp_path / "x.gif",
     )  # fmt: skip
     assert code == 2 and str(model) in err and "no trained renderer" in err
-    code, _, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", *RENDER, "--out", tmp_path / "x.avi"
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", *RENDER, "--out", tmp_path / "x.avi"
     )
     assert code == 2 and "x.avi" in err
     bad_cam = tmp_path / "cam.json"
     bad_cam.write_text('{"width": 10}')
-    code, _, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", "--camera", bad_cam,
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", "--camera", bad_cam,
         "--out", tmp_path / "x.gif",
     )  # fmt: skip
     assert code == 2 and str(bad_cam) in err
-    code, _, err = run(
-        capsys, "render", smoke_project, "--motion", "moonwalk", "--out", tmp_path / "x.gif"
-    )
+    code, _, err = dng("render", smoke_project, "--motion", "moonwalk", "--out", tmp_path / "x.gif")
     assert code == 2 and "moonwalk" in err
     assert not (tmp_path / "x.gif").exists() and not (tmp_path / "x.avi").exists()
 
 
-def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_path, capsys):
+def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_path, dng):
     from PIL import Image
 
     from training.renderer import background_finetune_parameters, load_model
@@ -128,8 +118,8 @@ def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_p
     y, x = np.mgrid[0:40, 0:70]
     image = np.stack([x * 3 % 256, y * 6 % 256, np.full_like(x, 90)], -1).astype(np.uint8)
     Image.fromarray(image).save(tmp_path / "backdrop.png")
-    code, out, err = run(
-        capsys, "finetune", smoke_project, "--background", tmp_path / "backdrop.png",
+    code, out, err = dng(
+        "finetune", smoke_project, "--background", tmp_path / "backdrop.png",
         "--steps", 2, "--name", "test-bg",
     )  # fmt: skip
     assert code == 0, err
@@ -147,8 +137,8 @@ def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_p
     assert any(not torch.equal(d0[k], d1[k]) for k in d0)  # the discriminator trains too
 
     # Playing it: the backdrop beside the model is picked up.
-    code, out, err = run(
-        capsys, "render", smoke_project, "--motion", "walk", "--frames", 2, "--size", 48,
+    code, out, err = dng(
+        "render", smoke_project, "--motion", "walk", "--frames", 2, "--size", 48,
         "--renderer", folder / "renderer.pt", "--out", tmp_path / "bg.gif",
     )  # fmt: skip
     assert code == 0, err
@@ -157,33 +147,31 @@ def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_p
     assert abs(int(corner[2]) - 90) < 30  # the backdrop's blue channel, not the studio grey
 
 
-def test_finetune_bad_inputs(smoke_project, tmp_path, capsys):
+def test_finetune_bad_inputs(smoke_project, tmp_path, dng):
     bad = tmp_path / "broken.png"
     bad.write_text("not an image")
-    code, _, err = run(capsys, "finetune", smoke_project, "--background", bad, "--steps", 1)
+    code, _, err = dng("finetune", smoke_project, "--background", bad, "--steps", 1)
     assert code == 2 and str(bad) in err
     gone = tmp_path / "gone.jpg"
-    code, _, err = run(capsys, "finetune", smoke_project, "--background", gone)
+    code, _, err = dng("finetune", smoke_project, "--background", gone)
     assert code == 2 and str(gone) in err
     missing = tmp_path / "no-project"
-    code, _, err = run(capsys, "finetune", missing, "--body-shape", "height=1.8")
+    code, _, err = dng("finetune", missing, "--body-shape", "height=1.8")
     assert code == 2 and str(missing) in err
-    code, _, err = run(capsys, "finetune", smoke_project, "--body-shape", "neck=3")
+    code, _, err = dng("finetune", smoke_project, "--body-shape", "neck=3")
     assert code == 2 and "neck" in err
     model = tmp_path / "none.pt"
-    code, _, err = run(
-        capsys, "finetune", smoke_project, "--body-shape", "height=1.8", "--renderer", model
-    )
+    code, _, err = dng("finetune", smoke_project, "--body-shape", "height=1.8", "--renderer", model)
     assert code == 2 and str(model) in err
 
 
 @pytest.mark.slow
-def test_finetune_body_shape(smoke_project, tmp_path, capsys):
+def test_finetune_body_shape(smoke_project, tmp_path, dng):
     from core.project import Project
     from training.pipeline import project_config
 
-    code, out, err = run(
-        capsys, "finetune", smoke_project, "--body-shape", "height=1.8", "build=0.4",
+    code, out, err = dng(
+        "finetune", smoke_project, "--body-shape", "height=1.8", "build=0.4",
         "--steps", 2, "--name", "test-tall",
     )  # fmt: skip
     assert code == 0, err
@@ -194,15 +182,13 @@ def test_finetune_body_shape(smoke_project, tmp_path, capsys):
     for name in ("proxy/proxy.obj", "proxy/seams.npz", "garment/target.obj"):
         assert (sub / name).read_bytes() == (smoke_project / name).read_bytes()
     assert (sub / "dataset" / "samples.json").is_file()
-    code, _, err = run(
-        capsys, "render", sub, "--motion", "walk", *RENDER, "--out", tmp_path / "tall.gif"
-    )
+    code, _, err = dng("render", sub, "--motion", "walk", *RENDER, "--out", tmp_path / "tall.gif")
     assert code == 0, err
 
 
-def test_bench_render(tmp_path, capsys):
-    code, out, err = run(
-        capsys, "bench", "render", "--sizes", 32, "--threads", 1, "--frames", 1,
+def test_bench_render(tmp_path, dng):
+    code, out, err = dng(
+        "bench", "render", "--sizes", 32, "--threads", 1, "--frames", 1,
         "--presets", "tiny", "--out", tmp_path, "--json",
     )  # fmt: skip
     assert code == 0, err
