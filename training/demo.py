@@ -335,8 +335,8 @@ def _renderer_markdown(report: dict) -> list[str]:
             "",
             f"{share:.0%} of our MSE on Joint2Coarse's proxy is gone on the simulated proxy: that "
             "part is where Joint2Coarse puts the garment on unseen motion, and every method shares "
-            "it (the Joint2Coarse table above; its autoencoder rows bound what a better motion "
-            "encoder could reach).",
+            "it (the Joint2Coarse table above; its autoencoder rows show what the decoder reaches "
+            "when given the simulated shapes themselves).",
         ]
     first = next(iter(ev["motions"].values()), {})
     fid = next(iter(first.values()), {}).get("fid", {})
@@ -425,11 +425,11 @@ def report_markdown(report: dict) -> str:
             f"| validation after {stage} | {e['mean_mm']:.1f} | {e['p95_mm']:.1f} | "
             f"{e['max_mm']:.1f} |"
         )
-    bound = ", the shape autoencoder on its simulated shapes (the decoder's bound)"
+    reach = ", the shape autoencoder on its simulated shapes (what the decoder reaches)"
     for name, m in j["motions"].items():
         rows = [("", m["error_mm"]), (", pushed out of the body", m["with_push_out"]["error_mm"])]
         if "autoencoder_error_mm" in m:
-            rows.append((bound, m["autoencoder_error_mm"]))
+            rows.append((reach, m["autoencoder_error_mm"]))
         for label, e in rows:
             lines.append(
                 f"| unseen `{name}` ({m['frames']} frames){label} | {e['mean_mm']:.1f} | "

@@ -623,7 +623,7 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
         "frames": int(len(pred)),
         **measured(pred),
         "with_push_out": measured(pushed),
-        # What no motion encoder can beat with this decoder: the shapes themselves, encoded.
+        # What the decoder reaches from the shapes themselves, encoded (no motion involved).
         "autoencoder_error_mm": asdict(vertex_errors(rebuilt, reference.positions)),
         "batch_ms_per_frame": ms,
         "streaming_ms_per_frame": {

@@ -8,7 +8,7 @@ Array-level API (the CLI and project folders wrap it):
 - prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream` (on a
   :class:`FrozenForward`: the network as plain matrix products, for one frame at a time);
 - extras: :func:`push_out_of_capsules`, :func:`vertex_errors`, :func:`reconstruct_proxy` (the
-  shape autoencoder's bound on unseen shapes).
+  shape autoencoder on known shapes: what the decoder reaches).
 """
 
 from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules

@@ -89,9 +89,10 @@ def reconstruct_proxy(
 ) -> np.ndarray:
     """The shape autoencoder's reconstruction of known proxy shapes (no motion encoder).
 
-    Its error against ``proxy`` bounds what any motion encoder can reach with this decoder:
-    shapes the autoencoder cannot reproduce lie outside what the network learnt from its
-    training clips, whatever the motion.
+    Its error against ``proxy`` shows what the decoder reaches from the shape encoder's latent,
+    which the motion encoder was trained to hit: where it is large, the shapes lie outside what
+    the network learnt from its training clips, and a better motion encoder alone would not
+    help (a strict bound would need the best latent, not the encoder's).
 
     Parameters
     ----------
