@@ -187,13 +187,22 @@ def test_train_renderer_cli_with_new_settings(smoke, tmp_path):
     assert report["config"]["w_gan"] == 0 and report["config"]["w_fm"] == 0
     assert report["steps"] == 6 and report["resumed_at_step"] == 0  # new settings: a new run
     for bad, message in (
-        ("w_gann=0", "unknown renderer setting(s) ['w_gann']"),
+        ("w_gann=0", "unknown renderer config keys ['w_gann']"),
         ("w_gan=-1", "w_gan=-1 must be a finite number >= 0"),
         ("w_gan", "--set expects KEY=VALUE"),
     ):
         r = subprocess.run(dng + ["--set", bad], capture_output=True, text=True)
         assert r.returncode == 2 and message in r.stderr, (bad, r.stderr)
     assert project_config(Project(copy)).renderer_overrides["w_gan"] == 0  # refused: unchanged
+
+    j2c = [sys.executable, "-m", "app.cli", "train", "joint2coarse", str(copy)]
+    r = subprocess.run(j2c + ["--set", "dropuot=0.2"], capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown joint2coarse config keys ['dropuot']" in r.stderr
+    r = subprocess.run(j2c + ["--set", "dropout=0.2"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert project_config(Project(copy)).joint2coarse_overrides == {"dropout": 0.2}
+    report = json.loads((copy / "joint2coarse" / "report.json").read_text())
+    assert report["config"]["dropout"] == 0.2
 
 
 def test_cli_commands_on_the_project(smoke, tmp_path, bvh_dir):
@@ -239,10 +248,10 @@ def test_settings_round_trip_and_errors(tmp_path):
         project_config(proj)
 
 
-def test_renderer_overrides_reach_ours_and_dnr_with_our_loss_only():
+def test_overrides_reach_their_network_and_dnr_with_our_loss():
     from dataclasses import replace
 
-    from training.pipeline import baseline_config, renderer_config
+    from training.pipeline import baseline_config, joint2coarse_config, renderer_config
 
     quick = preset("quick")
     ours = renderer_config(quick)
@@ -255,7 +264,11 @@ def test_renderer_overrides_reach_ours_and_dnr_with_our_loss_only():
     cfg = renderer_config(listed)
     assert cfg.texture_sizes == (64, 32) and cfg.steps == 7  # JSON lists become tuples
     assert baseline_config(listed, "dnr").steps == 7  # the baselines train as many steps
-    with pytest.raises(InputError, match=r"unknown renderer setting\(s\) \['w_gann'\]"):
+    with pytest.raises(InputError, match=r"unknown renderer config keys \['w_gann'\]"):
         renderer_config(replace(quick, renderer_overrides={"w_gann": 0}))
     with pytest.raises(InputError, match="w_gan=-1 must be a finite number"):
         renderer_config(replace(quick, renderer_overrides={"w_gan": -1}))
+    j2c = joint2coarse_config(replace(quick, joint2coarse_overrides={"encoder_widths": [64, 32]}))
+    assert j2c.encoder_widths == (64, 32) and j2c.dropout == 0.05
+    with pytest.raises(InputError, match="dropout=1.5 must be in"):
+        joint2coarse_config(replace(quick, joint2coarse_overrides={"dropout": 1.5}))

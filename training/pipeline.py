@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -129,7 +129,10 @@ class PipelineConfig:
     joint2coarse_preset: str = "fast"
     """Joint2Coarse preset name (``training.joint2coarse.PRESETS``) ..."""
     joint2coarse_steps: tuple[int, int, int] | None = None
-    """... with (autoencoder, motion, finetune) step counts overridden when given."""
+    """... with (autoencoder, motion, finetune) step counts overridden when given ..."""
+    joint2coarse_overrides: dict = field(default_factory=dict)
+    """... and any other fields changed from the preset, e.g. ``{"dropout": 0.2}``
+    (``dng train joint2coarse --set dropout=0.2``)."""
     seed: int = 0
     """Seed of everything random in training."""
     torch_threads: int = 1
@@ -496,6 +499,8 @@ def joint2coarse_config(config: PipelineConfig):
     if config.joint2coarse_steps is not None:
         a, m, f = config.joint2coarse_steps
         cfg = replace(cfg, autoencoder_steps=a, motion_steps=m, finetune_steps=f)
+    if config.joint2coarse_overrides:
+        cfg = type(cfg).from_dict({**cfg.to_dict(), **config.joint2coarse_overrides})
     return cfg
 
 
@@ -668,14 +673,7 @@ def renderer_config(config: PipelineConfig):
     if config.renderer_steps is not None:
         cfg = cfg.replace(steps=config.renderer_steps)
     if config.renderer_overrides:
-        known = {f.name for f in fields(cfg)}
-        unknown = sorted(set(config.renderer_overrides) - known)
-        if unknown:
-            raise InputError(f"unknown renderer setting(s) {unknown}; choose from {sorted(known)}")
-        values = {
-            k: tuple(v) if isinstance(v, list) else v for k, v in config.renderer_overrides.items()
-        }
-        cfg = cfg.replace(**values)
+        cfg = type(cfg).from_dict({**cfg.to_dict(), **config.renderer_overrides})
     return cfg
 
 

@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     j.add_argument("project", help="project folder (made by dng demo)")
     j.add_argument("--preset", help="Joint2Coarse preset (paper, fast); default: the project's")
+    _add_set(j, "Joint2Coarse", "--set dropout=0.2 --set window=16")
     j.set_defaults(handler=run_joint2coarse)
     r = what.add_parser(
         "renderer",
@@ -39,16 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("sim", "joint2coarse"),
         help="proxy to train on: simulated (default) or Joint2Coarse's prediction",
     )
-    r.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        metavar="KEY=VALUE",
-        help=(
-            "change one renderer setting from the preset, e.g. --set w_gan=0 --set w_fm=0 "
-            "(values read as JSON: numbers, true/false, lists); kept in the project's settings"
-        ),
-    )
+    _add_set(r, "renderer", "--set w_gan=0 --set w_fm=0")
     r.set_defaults(handler=run_renderer)
     b = what.add_parser(
         "baselines",
@@ -63,23 +55,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.set_defaults(handler=run_baselines)
 
 
+def _add_set(parser: argparse.ArgumentParser, what: str, example: str) -> None:
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        metavar="KEY=VALUE",
+        help=(
+            f"change one {what} setting from the preset, e.g. {example} (values read as "
+            "JSON: numbers, true/false, lists); kept in the project's settings"
+        ),
+    )
+
+
 def run_joint2coarse(args: argparse.Namespace) -> int:
     import json
-    from dataclasses import replace
 
-    from core.project import Project
-    from training.pipeline import project_config, stage_joint2coarse
+    from training.pipeline import stage_joint2coarse
 
-    project = Project(args.project)
-    config = project_config(project)
-    if args.preset:
-        config = replace(config, joint2coarse_preset=args.preset, joint2coarse_steps=None)
+    project, config = _config_with(args, "joint2coarse")
     report = stage_joint2coarse(project, config, print)
     print(json.dumps(report["motions"], indent=1))
     return 0
 
 
-def _config_with(args: argparse.Namespace):
+def _config_with(args: argparse.Namespace, network: str = "renderer"):
+    """The project and its settings with this command's changes; saved when there are any.
+
+    ``network`` (``renderer`` or ``joint2coarse``) is what ``--preset`` and ``--set`` change.
+    """
     from dataclasses import replace
 
     from core.project import Project
@@ -89,7 +93,9 @@ def _config_with(args: argparse.Namespace):
     config = project_config(project)
     changes = {}
     if getattr(args, "preset", None):
-        changes["renderer_preset"] = args.preset
+        changes[f"{network}_preset"] = args.preset
+        if network == "joint2coarse":
+            changes["joint2coarse_steps"] = None  # the preset's own schedule
     if getattr(args, "steps", None) is not None:
         changes["renderer_steps"] = args.steps
     if getattr(args, "source", None):
@@ -97,14 +103,16 @@ def _config_with(args: argparse.Namespace):
     if getattr(args, "kinds", None):
         changes["baselines"] = tuple(args.kinds)
     if getattr(args, "overrides", None):
-        changes["renderer_overrides"] = {
-            **config.renderer_overrides,
+        changes[f"{network}_overrides"] = {
+            **getattr(config, f"{network}_overrides"),
             **dict(parse_setting(item) for item in args.overrides),
         }
     config = replace(config, **changes)
-    from training.pipeline import baseline_config, renderer_config
+    from training.pipeline import baseline_config, joint2coarse_config, renderer_config
 
-    renderer_config(config)  # an unknown preset or kind fails here, before the settings change
+    # an unknown preset, kind or setting fails here, before the settings change
+    joint2coarse_config(config)
+    renderer_config(config)
     for kind in config.baselines:
         baseline_config(config, kind)
     if changes:  # later stages (dng eval, the GUI) read the same settings
