@@ -31,7 +31,8 @@ from training.joint2coarse import (
     Joint2CoarseStream,
     heading_rotations,
     predict_proxy,
-    to_root_frame,
+    tilt_rotvecs,
+    to_output_frame,
     train_joint2coarse,
     vertex_errors,
 )
@@ -83,7 +84,9 @@ def main() -> None:
           f"{res.baseline.p95_mm:.2f} mm p95")  # fmt: skip
     for stage, e in res.stage_errors.items():
         print(f"validation after {stage}: {e.mean_mm:.2f} mm mean, {e.p95_mm:.2f} mm p95")
-    local = to_root_frame(test_proxy, test_joints[:, 0], heading_rotations(test_rot))
+    heading = heading_rotations(test_rot)
+    frame = (test_joints[:, 0], heading, tilt_rotvecs(test_rot, heading), res.net.follow_weights())
+    local = to_output_frame(test_proxy, *frame)
     mean = res.net.vert_mean.numpy().reshape(1, -1, 3)
     e = vertex_errors(np.broadcast_to(mean, local.shape), local)
     print(f"unseen walk, mean shape baseline: {e.mean_mm:.2f} mm mean, {e.p95_mm:.2f} mm p95")

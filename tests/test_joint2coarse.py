@@ -25,17 +25,23 @@ from training.joint2coarse import (
     Joint2CoarseConfig,
     Joint2CoarseStream,
     canonical_joint_order,
+    follow_weights,
+    from_output_frame,
     heading_rotations,
     joint2coarse_inputs,
     load_model,
     motion_descriptors,
     predict_proxy,
+    prepare_data,
     push_out_of_capsules,
     reconstruct_proxy,
+    tilt_rotvecs,
+    to_output_frame,
     to_root_frame,
     train_joint2coarse,
     vertex_errors,
 )
+from training.joint2coarse.descriptor import rotate_partially
 from training.joint2coarse.model import (
     MODEL_FORMAT,
     Joint2CoarseNet,
@@ -136,6 +142,61 @@ def test_descriptor_invariant_to_walk_position_and_facing_not_tilt():
     tilt = rotation_about(np.array([1.0, 0.0, 0.0]), 0.5)
     desc3, _, _ = motion_descriptors(joints @ tilt.T, tilt @ root_rot, 34, 2)
     assert np.abs(desc3 - desc).max() > 0.05, "a tilted body must change the descriptor"
+
+
+def test_tilt_is_the_swing_past_the_heading_up_to_a_half_turn():
+    rng = np.random.default_rng(5)
+    yaw = rng.uniform(-3, 3, 9)
+    axis = np.array([0.6, 0.0, 0.8])
+    for angle in (0.0, 1e-9, 1e-4, 0.7, np.pi / 2, 2.5, np.pi - 1e-6, np.pi):
+        r = rotation_about(Y, yaw) @ rotation_about(axis, angle)
+        heading = heading_rotations(r)
+        tilt = tilt_rotvecs(r, heading)
+        assert tilt.shape == (9, 3) and np.isfinite(tilt).all()
+        # Turning the basis vectors by the whole tilt gives heading^T root (its columns).
+        turned = rotate_partially(np.broadcast_to(np.eye(3), (9, 3, 3)), tilt, np.ones(3))
+        swing = np.swapaxes(heading, -1, -2) @ r
+        assert_close(np.swapaxes(turned, -1, -2), swing, atol=1e-9, what=f"tilt {angle}")
+        if angle < 2.6:  # nearer a half turn the yaw/swing split itself is ill-conditioned
+            assert_close(tilt, np.broadcast_to(axis * angle, tilt.shape), atol=1e-6, what="axis")
+
+
+def test_output_frames_follow_the_tilt_by_height():
+    rng = np.random.default_rng(6)
+    weights = follow_weights(np.array([0.0, -0.3, -0.6, -0.15]), 0.8)
+    assert_close(weights, np.array([0.8, 0.4, 0.0, 0.6]), atol=1e-6, what="linear in height")
+    assert_close(follow_weights(np.zeros(3), 0.5), np.full(3, 0.5), what="one height")
+
+    t, v = 6, 4
+    yaw, pitch = rng.uniform(-3, 3, t), rng.uniform(-1.2, 1.2, t)
+    root = rotation_about(Y, yaw) @ rotation_about(np.array([1.0, 0.0, 0.0]), pitch)
+    heading = heading_rotations(root)
+    tilt = tilt_rotvecs(root, heading)
+    origin = rng.normal(size=(t, 3))
+    points = rng.normal(size=(t, v, 3))
+    rooted = to_root_frame(points, origin, heading)
+    assert_close(to_output_frame(points, origin, heading, tilt, None), rooted, what="no follow")
+    full = to_output_frame(points, origin, heading, tilt, np.ones(v))
+    pelvis = np.einsum("tji,tvj->tvi", root, points - origin[:, None])  # root^T (p - o)
+    assert_close(full, pelvis, atol=1e-9, what="follow 1 is the root's own frame")
+    local = to_output_frame(points, origin, heading, tilt, weights)
+    assert_close(local[:, 2], rooted[:, 2], atol=1e-12, what="follow 0 is the heading frame")
+    back = from_output_frame(local, origin, heading, tilt, weights)
+    assert_close(back, points, atol=1e-9, what="from_output_frame inverts to_output_frame")
+
+    # A garment fixed to the pelvis: its waistband is still in the output frame, however the
+    # hips tilt; its hem moves (it is predicted in the heading frame).
+    walk_joints, walk_rot = joint2coarse_inputs(synthetic_walk(t, seed=3))
+    rest = np.array([[0.0, 0.0, 0.15], [0.2, -0.2, 0.0], [0.0, -0.6, 0.3]])
+    proxy = walk_joints[:, :1].astype(np.float64) + np.einsum("tij,vj->tvi", root, rest)
+    clip = Joint2CoarseClip(walk_joints, root.astype(np.float32), proxy.astype(np.float32))
+    cfg = replace(SMALL, window=2, val_fraction=0.0)
+    verts = prepare_data([clip], cfg).train_verts.reshape(t, 3, 3)
+    assert_close(verts[:, 0], np.broadcast_to(rest[0], (t, 3)), atol=1e-5, what="waistband")
+    assert np.ptp(verts[:, 2], axis=0).max() > 0.1, "the hem is in the heading frame"
+    paper = prepare_data([clip], replace(cfg, tilt_follow=0.0))
+    assert not paper.follow.any()
+    assert np.ptp(paper.train_verts.reshape(t, 3, 3)[:, 0], axis=0).max() > 0.05
 
 
 # -- training -----------------------------------------------------------------------------------
@@ -277,13 +338,16 @@ def test_sigkill_mid_run_then_resume(tmp_path):
 
 def test_streaming_equals_batch(trained):
     net = trained.net
+    assert net.follow_weights() is not None  # output frames that follow the tilt
     joints, root_rot, _ = synthetic_clip(40, seed=7)
-    batch = predict_proxy(net, joints, root_rot)
-    stream = Joint2CoarseStream(net)
-    for _ in range(2):  # and again after a reset
-        frames = np.stack([stream.push(j, r) for j, r in zip(joints, root_rot)])
-        assert_close(frames, batch, atol=1e-5, what="stream vs batch")
-        stream.reset()
+    pitch = rotation_about(np.array([1.0, 0.0, 0.0]), 1.2 * np.sin(np.arange(40) / 5.0))
+    for r_clip in (root_rot, (root_rot @ pitch).astype(np.float32)):  # and hips tilted far
+        batch = predict_proxy(net, joints, r_clip)
+        stream = Joint2CoarseStream(net)
+        for _ in range(2):  # and again after a reset
+            frames = np.stack([stream.push(j, r) for j, r in zip(joints, r_clip)])
+            assert_close(frames, batch, atol=1e-5, what="stream vs batch")
+            stream.reset()
 
 
 def _random_net(config: Joint2CoarseConfig, n_vertices: int, seed: int = 0) -> Joint2CoarseNet:
@@ -382,9 +446,12 @@ def test_model_files_from_before_the_output_basis(tmp_path, clips):
     payload = torch.load(tmp_path / "new.pt", weights_only=True)
     assert payload["format"] == MODEL_FORMAT
     del payload["config"]["output_basis"]  # what an older version wrote
+    del payload["config"]["tilt_follow"]
+    del payload["state_dict"]["follow"]
     torch.save(payload, tmp_path / "old.pt")
     old = load_model(tmp_path / "old.pt")
     assert old.config.output_basis == 0 and old.n_basis == 0
+    assert old.config.tilt_follow == 0.0 and old.follow_weights() is None  # the root frame
     joints, root_rot, _ = synthetic_clip(12, seed=2)
     assert_close(
         predict_proxy(old, joints, root_rot), predict_proxy(net, joints, root_rot), what="old"
@@ -415,7 +482,7 @@ def test_extreme_motion_is_finite_and_bounded(trained):
     net = trained.net
     mean = net.vert_mean.numpy().reshape(-1, 3)
     std = net.vert_std.numpy().reshape(-1, 3)
-    bound = np.abs(mean) + SMALL.clamp_z * std + 1e-3  # root-frame metres, per coordinate
+    bound = np.abs(mean) + SMALL.clamp_z * std + 1e-3  # output-frame metres, per coordinate
 
     joints, root_rot = joint2coarse_inputs(synthetic_walk(10_000, seed=4))
     far = joints + np.array([1000.0, 0.0, -1000.0], np.float32)  # 1.4 km away
@@ -427,7 +494,9 @@ def test_extreme_motion_is_finite_and_bounded(trained):
     for j, r in cases:
         pred = predict_proxy(net, j, r)
         assert np.isfinite(pred).all()
-        local = to_root_frame(pred, j[:, 0], heading_rotations(r))
+        heading = heading_rotations(r)
+        frame = (j[:, 0], heading, tilt_rotvecs(r, heading), net.follow_weights())
+        local = to_output_frame(pred, *frame)
         assert (np.abs(local) <= bound).all(), f"max local {np.abs(local).max():.3f} m"
     # Far away, the proxy still follows the body (float32 positions at 1 km: ~0.1 mm steps).
     near = predict_proxy(net, joints[:500], root_rot[:500])

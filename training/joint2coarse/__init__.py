@@ -4,6 +4,8 @@ Array-level API (the CLI and project folders wrap it):
 
 - inputs: :func:`joint2coarse_inputs` (Motion -> joints (T, 20, 3), root rotations (T, 3, 3)),
   :func:`canonical_joint_order`, :func:`motion_descriptors`, :func:`heading_rotations`;
+  the output frame each vertex is predicted in: :func:`to_output_frame`, :func:`from_output_frame`
+  (the root frame tilted per vertex by :func:`follow_weights` of :func:`tilt_rotvecs`);
 - training: :class:`Joint2CoarseClip`, :func:`train_joint2coarse` (resumable);
 - prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream` (on a
   :class:`FrozenForward`: the network as plain matrix products, for one frame at a time);
@@ -16,10 +18,14 @@ from training.joint2coarse.config import PRESETS, Joint2CoarseConfig
 from training.joint2coarse.descriptor import (
     JOINT2COARSE_JOINTS,
     canonical_joint_order,
+    follow_weights,
+    from_output_frame,
     from_root_frame,
     heading_rotations,
     joint2coarse_inputs,
     motion_descriptors,
+    tilt_rotvecs,
+    to_output_frame,
     to_root_frame,
 )
 from training.joint2coarse.metrics import VertexErrors, vertex_errors
@@ -49,6 +55,8 @@ __all__ = [
     "Joint2CoarseTrainResult",
     "VertexErrors",
     "canonical_joint_order",
+    "follow_weights",
+    "from_output_frame",
     "from_root_frame",
     "heading_rotations",
     "joint2coarse_inputs",
@@ -59,6 +67,8 @@ __all__ = [
     "push_out_of_capsules",
     "reconstruct_proxy",
     "save_model",
+    "tilt_rotvecs",
+    "to_output_frame",
     "to_root_frame",
     "train_joint2coarse",
     "vertex_errors",

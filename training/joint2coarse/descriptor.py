@@ -147,6 +147,136 @@ def from_root_frame(points: np.ndarray, origin: np.ndarray, heading: np.ndarray)
     return p + np.asarray(origin, np.float64)[:, None]
 
 
+def tilt_rotvecs(root_rotations: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """The root's tilt beyond its heading, ``heading^T root``, as rotation vectors.
+
+    With the heading from :func:`heading_rotations` this is the swing of the swing-twist split:
+    the pelvis's pitch and roll, about a horizontal axis, in root-frame coordinates. The angle
+    comes from ``atan2(sin, cos)`` (accurate near 0); past 90 degrees the axis comes from the
+    symmetric part of the matrix, so the vector stays accurate up to a half turn (upside down),
+    where its sign is arbitrary.
+
+    Parameters
+    ----------
+    root_rotations : (T, 3, 3) float
+    heading : (T, 3, 3) float
+
+    Returns
+    -------
+    (T, 3) float64: unit axis times angle in [0, pi].
+    """
+    m = np.matmul(np.swapaxes(np.asarray(heading, np.float64), -1, -2), root_rotations)
+    v = 0.5 * np.stack(
+        [m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1
+    )  # sin(angle) * axis
+    s = np.linalg.norm(v, axis=-1)
+    c = np.clip(0.5 * (np.trace(m, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
+    angle = np.arctan2(s, c)
+    out = v * np.where(s > 1e-300, angle / np.maximum(s, 1e-300), 1.0)[:, None]
+    wide = c < 0.0  # past 90 degrees sin(angle) loses the axis: (sym - c I) = (1 - c) k k^T
+    if wide.any():
+        sym = 0.5 * (m[wide] + np.swapaxes(m[wide], -1, -2)) - c[wide, None, None] * np.eye(3)
+        col = np.argmax(np.diagonal(sym, axis1=1, axis2=2), axis=-1)
+        axis = sym[np.arange(len(sym)), :, col]
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        axis *= np.where(np.sum(axis * v[wide], -1) < 0.0, -1.0, 1.0)[:, None]
+        out[wide] = axis * angle[wide, None]
+    return out
+
+
+def follow_weights(heights: np.ndarray, top: float) -> np.ndarray:
+    """How much of the root's tilt each proxy vertex's output frame takes: ``top`` at the
+    highest vertex, falling linearly with height to 0 at the lowest.
+
+    Parameters
+    ----------
+    heights : (Vc,) float
+        Root-frame height of each vertex in a typical shape (the training shapes' mean).
+    top : float
+        Weight at the top, in [0, 1] (:attr:`Joint2CoarseConfig.tilt_follow`).
+
+    Returns
+    -------
+    (Vc,) float32; all ``top`` when every vertex is at one height.
+    """
+    y = np.asarray(heights, np.float64)
+    span = y.max() - y.min()
+    if span <= 1e-9:
+        return np.full(len(y), top, np.float32)
+    return (top * (y - y.min()) / span).astype(np.float32)
+
+
+def rotate_partially(points: np.ndarray, rotvecs: np.ndarray, fractions: np.ndarray) -> np.ndarray:
+    """Rotate each point by its own fraction of its frame's rotation (Rodrigues' formula).
+
+    Parameters
+    ----------
+    points : (T, N, 3) float
+    rotvecs : (T, 3) float
+        Axis times angle per frame.
+    fractions : (N,) float
+        Point n turns by ``fractions[n] * angle`` about the frame's axis.
+
+    Returns
+    -------
+    (T, N, 3) float64
+    """
+    p = np.asarray(points, np.float64)
+    angle = np.linalg.norm(rotvecs, axis=-1)
+    k = (rotvecs / np.where(angle > 0.0, angle, 1.0)[:, None])[:, None, :]  # (T, 1, 3)
+    a = np.asarray(fractions, np.float64)[None, :] * angle[:, None]  # (T, N)
+    c, s = np.cos(a)[..., None], np.sin(a)[..., None]
+    kp = np.sum(k * p, -1, keepdims=True)
+    return p * c + np.cross(k, p) * s + k * kp * (1.0 - c)
+
+
+def to_output_frame(
+    points: np.ndarray,
+    origin: np.ndarray,
+    heading: np.ndarray,
+    tilt: np.ndarray,
+    follow: np.ndarray | None,
+) -> np.ndarray:
+    """World proxy vertices into the frames Joint2Coarse predicts them in.
+
+    Vertex i of frame t is expressed in ``R_i = heading (heading^T root)^follow[i]``: the
+    heading frame turned by ``follow[i]`` of the root's tilt. So the waistband (follow 1) moves
+    with the pelvis, and the hem (follow 0) only with the heading. With ``follow`` None (or all
+    zero) it is :func:`to_root_frame`, the paper's frame.
+
+    Parameters
+    ----------
+    points : (T, Vc, 3) float
+    origin : (T, 3) float
+    heading : (T, 3, 3) float
+    tilt : (T, 3) float
+        :func:`tilt_rotvecs` of the frames.
+    follow : (Vc,) float or None
+        :func:`follow_weights`.
+
+    Returns
+    -------
+    (T, Vc, 3) float64
+    """
+    local = to_root_frame(points, origin, heading)
+    if follow is None or not np.any(follow):
+        return local
+    return rotate_partially(local, -np.asarray(tilt, np.float64), follow)
+
+
+def from_output_frame(
+    points: np.ndarray,
+    origin: np.ndarray,
+    heading: np.ndarray,
+    tilt: np.ndarray,
+    follow: np.ndarray | None,
+) -> np.ndarray:
+    """The inverse of :func:`to_output_frame`; same shapes."""
+    if follow is not None and np.any(follow):
+        points = rotate_partially(points, tilt, follow)
+    return from_root_frame(points, origin, heading)
+
+
 def history_indices(num_frames: int, window: int, stride: int) -> np.ndarray:
     """Frame index of each descriptor sample: ``max(t - k * stride, 0)``.
 

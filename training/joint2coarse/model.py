@@ -100,7 +100,9 @@ class Joint2CoarseNet(nn.Module):
     (B, Vc * 3) normalised vertices.
 
     Buffers ``desc_mean``, ``desc_std`` are (D,) float32; ``vert_mean``, ``vert_std`` are
-    (Vc * 3,) float32, per coordinate of root-frame vertices. They travel in the state dict.
+    (Vc * 3,) float32, per coordinate of output-frame vertices; ``follow`` is (Vc,) float32, the
+    share of the root's tilt each vertex's output frame takes (:meth:`follow_weights`). They
+    travel in the state dict.
     """
 
     def __init__(self, config: Joint2CoarseConfig, n_vertices: int, descriptor_dim: int):
@@ -124,6 +126,13 @@ class Joint2CoarseNet(nn.Module):
         self.register_buffer("desc_std", torch.ones(descriptor_dim))
         self.register_buffer("vert_mean", torch.zeros(out))
         self.register_buffer("vert_std", torch.ones(out))
+        self.register_buffer("follow", torch.zeros(n_vertices))
+
+    def follow_weights(self) -> np.ndarray | None:
+        """(Vc,) float64 copy of the ``follow`` buffer, or None when it is all zero (every
+        vertex in the root frame: :func:`~training.joint2coarse.descriptor.to_output_frame`)."""
+        w = self.follow.detach().numpy().astype(np.float64)
+        return w if w.any() else None
 
     def set_statistics(self, desc_mean, desc_std, vert_mean, vert_std) -> None:
         """Copy normalisation statistics in (array-likes of the buffer shapes)."""
@@ -154,16 +163,16 @@ class Joint2CoarseNet(nn.Module):
         return z.clamp(-self.config.clamp_z, self.config.clamp_z)
 
     def normalise_vertices(self, verts: torch.Tensor) -> torch.Tensor:
-        """(B, Vc * 3) float32 root-frame metres -> z-scores (not clamped: training targets)."""
+        """(B, Vc * 3) float32 output-frame metres -> z-scores (not clamped: training targets)."""
         return (verts - self.vert_mean) / self.vert_std
 
     def denormalise_vertices(self, z: torch.Tensor) -> torch.Tensor:
-        """(B, Vc * 3) z-scores -> (B, Vc, 3) root-frame metres, z clamped first."""
+        """(B, Vc * 3) z-scores -> (B, Vc, 3) output-frame metres, z clamped first."""
         z = z.clamp(-self.config.clamp_z, self.config.clamp_z)
         return (z * self.vert_std + self.vert_mean).reshape(len(z), self.n_vertices, 3)
 
     def forward(self, desc: torch.Tensor) -> torch.Tensor:
-        """Motion descriptors (B, D) float32 -> root-frame proxy vertices (B, Vc, 3) float32."""
+        """Motion descriptors (B, D) float32 -> output-frame proxy vertices (B, Vc, 3) float32."""
         latent = self.motion_encoder(self.normalise_descriptor(desc))
         return self.denormalise_vertices(self.shape_decoder(latent))
 
@@ -196,11 +205,12 @@ def load_model(path: str | os.PathLike) -> Joint2CoarseNet:
 
 
 def stored_config(payload: dict, path: str | os.PathLike | None = None) -> Joint2CoarseConfig:
-    """The config of a saved payload; files from before ``output_basis`` existed read as 0."""
+    """The config of a saved payload; files from before ``output_basis`` or ``tilt_follow``
+    existed read them as 0 (what those files were trained with)."""
     data = payload.get("config")
     if not isinstance(data, dict):
         raise InputError("Joint2Coarse file has no config", path)
-    data = {"output_basis": 0, **data}
+    data = {"output_basis": 0, "tilt_follow": 0.0, **data}
     try:
         return Joint2CoarseConfig.from_dict(data)
     except (InputError, TypeError) as exc:
@@ -211,8 +221,11 @@ def net_from_payload(payload: dict, path: str | os.PathLike | None = None) -> Jo
     """Build the network a saved payload (model file or training checkpoint) describes."""
     config = stored_config(payload, path)
     net = Joint2CoarseNet(config, int(payload["n_vertices"]), int(payload["descriptor_dim"]))
+    state = payload["state_dict"]
+    if isinstance(state, dict) and "follow" not in state:  # written before the buffer existed
+        state = {**state, "follow": net.follow.clone()}
     try:
-        net.load_state_dict(payload["state_dict"])
+        net.load_state_dict(state)
     except RuntimeError as exc:
         raise InputError(
             f"Joint2Coarse weights do not fit the stored config: {exc}", path

@@ -12,16 +12,17 @@ from training.joint2coarse.descriptor import (
     NUM_JOINTS,
     check_joint_inputs,
     descriptor_from_history,
-    from_root_frame,
+    from_output_frame,
     heading_rotations,
     motion_descriptors,
-    to_root_frame,
+    tilt_rotvecs,
+    to_output_frame,
 )
 from training.joint2coarse.model import Joint2CoarseNet
 
 
 def _run_net(net: Joint2CoarseNet, desc: np.ndarray) -> np.ndarray:
-    """(B, D) float32 descriptors -> (B, Vc, 3) float32 root-frame vertices, eval mode."""
+    """(B, D) float32 descriptors -> (B, Vc, 3) float32 output-frame vertices, eval mode."""
     was_training = net.training
     if was_training:
         net.eval()
@@ -74,11 +75,12 @@ def predict_proxy(
         raise InputError("capsules and radii go together", source or None)
     cfg = net.config
     desc, origin, heading = motion_descriptors(joints, root_rotations, cfg.window, cfg.stride)
+    tilt, follow = tilt_rotvecs(root_rotations, heading), net.follow_weights()
     out = np.empty((len(desc), net.n_vertices, 3), np.float32)
     for start in range(0, len(desc), batch_size):
         sl = slice(start, start + batch_size)
         local = _run_net(net, desc[sl])
-        out[sl] = from_root_frame(local, origin[sl], heading[sl])
+        out[sl] = from_output_frame(local, origin[sl], heading[sl], tilt[sl], follow)
     if capsules is not None:
         out = push_out_of_capsules(out, capsules, radii, margin)
     return out
@@ -111,7 +113,8 @@ def reconstruct_proxy(
         raise InputError(f"proxy must be ({t}, {net.n_vertices}, 3), got {proxy.shape}")
     origin = np.asarray(joints, np.float64)[:, 0]
     heading = heading_rotations(root_rotations)
-    local = to_root_frame(proxy, origin, heading).reshape(t, -1).astype(np.float32)
+    frame = (origin, heading, tilt_rotvecs(root_rotations, heading), net.follow_weights())
+    local = to_output_frame(proxy, *frame).reshape(t, -1).astype(np.float32)
     was_training = net.training
     net.eval()
     try:
@@ -120,11 +123,11 @@ def reconstruct_proxy(
             out = net.denormalise_vertices(net.shape_decoder(net.shape_encoder(z))).numpy()
     finally:
         net.train(was_training)
-    return from_root_frame(out, origin, heading).astype(np.float32)
+    return from_output_frame(out, *frame).astype(np.float32)
 
 
 class FrozenForward:
-    """A network's eval-mode forward (descriptor -> root-frame vertices) as plain matrix products.
+    """A network's eval-mode forward (descriptor -> output-frame vertices) as plain matrix products.
 
     Takes a copy of the motion encoder's and the decoder's weights (as ``(in, out)`` matrices
     in the layout a one-frame product reads fastest) and folds the output denormalisation into
@@ -175,7 +178,7 @@ class FrozenForward:
         self._one_out = torch.empty(1, self.out_weight.shape[1])
 
     def __call__(self, desc: torch.Tensor) -> torch.Tensor:
-        """(B, D) float32 descriptors -> (B, Vc * 3) float32 root-frame vertices, flattened.
+        """(B, D) float32 descriptors -> (B, Vc * 3) float32 output-frame vertices, flattened.
 
         With B = 1 the result is a preallocated buffer, overwritten by the next one-frame call.
         """
@@ -234,6 +237,7 @@ class Joint2CoarseStream:
     ):
         self.net = net
         self.forward = FrozenForward(net, torch.bfloat16 if bfloat16 else torch.float32)
+        self._follow = net.follow_weights()
         cfg = net.config
         self._stride = cfg.stride
         self._samples = cfg.num_samples
@@ -284,7 +288,9 @@ class Joint2CoarseStream:
         desc = descriptor_from_history(self._ring[slots][None], origin, heading)
         with torch.inference_mode():
             local = self.forward(torch.from_numpy(desc)).numpy().reshape(1, -1, 3)
-        world = from_root_frame(local, origin, heading).astype(np.float32)[0]
+        tilt = tilt_rotvecs(root_rotation[None], heading)
+        world = from_output_frame(local, origin, heading, tilt, self._follow)
+        world = world.astype(np.float32)[0]
         self.frame_index = i + 1
         if capsules is not None:
             world = push_out_of_capsules(world, capsules, self.radii, self.margin)

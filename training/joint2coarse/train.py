@@ -2,7 +2,8 @@
 
 Stages (DESIGN, "The method"):
 
-1. ``autoencoder``: shape encoder + decoder on normalised root-frame proxy vertices (vertex L2);
+1. ``autoencoder``: shape encoder + decoder on normalised output-frame proxy vertices (vertex L2;
+   the output frame is the root frame tilted per vertex, ``config.tilt_follow``);
    the decoder's output basis (``config.output_basis``) is set from the training shapes first.
 2. ``motion``: motion encoder onto the frozen shape latent of each frame (latent L2).
 3. ``finetune``: motion encoder + decoder end to end on vertex L2 (skipped when 0 steps).
@@ -30,7 +31,14 @@ from core.errors import InputError
 from core.fileio import atomic_path
 from training.csvlog import append_rows, truncate_rows
 from training.joint2coarse.config import Joint2CoarseConfig
-from training.joint2coarse.descriptor import check_joint_inputs, motion_descriptors, to_root_frame
+from training.joint2coarse.descriptor import (
+    check_joint_inputs,
+    follow_weights,
+    motion_descriptors,
+    tilt_rotvecs,
+    to_output_frame,
+    to_root_frame,
+)
 from training.joint2coarse.metrics import VertexErrors
 from training.joint2coarse.model import (
     Joint2CoarseNet,
@@ -90,14 +98,17 @@ class Joint2CoarseClip:
 
 @dataclass(frozen=True)
 class Joint2CoarseData:
-    """Descriptors and root-frame vertices, split into training and validation frames.
+    """Descriptors and output-frame vertices, split into training and validation frames.
 
     Attributes
     ----------
     train_desc, val_desc : (N, D) float32
     train_verts, val_verts : (N, Vc * 3) float32
-        Proxy vertices in the root frame of their frame, flattened.
+        Proxy vertices in their frame's output frames
+        (:func:`~training.joint2coarse.descriptor.to_output_frame`), flattened.
     n_vertices : int
+    follow : (Vc,) float32
+        Each vertex's share of the root's tilt in its output frame (all 0: the root frame).
     """
 
     train_desc: np.ndarray
@@ -105,11 +116,12 @@ class Joint2CoarseData:
     val_desc: np.ndarray
     val_verts: np.ndarray
     n_vertices: int
+    follow: np.ndarray
 
     def fingerprint(self) -> str:
         """SHA-256 of the arrays: a resumed run must train on exactly the same data."""
         h = hashlib.sha256()
-        for a in (self.train_desc, self.train_verts, self.val_desc, self.val_verts):
+        for a in (self.train_desc, self.train_verts, self.val_desc, self.val_verts, self.follow):
             h.update(str(a.shape).encode())
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
@@ -124,11 +136,16 @@ def split_frames(num_frames: int, val_fraction: float) -> int:
 
 
 def prepare_data(clips: Sequence[Joint2CoarseClip], config: Joint2CoarseConfig) -> Joint2CoarseData:
-    """Descriptors and root-frame targets of every clip, split per clip (last frames held out)."""
+    """Descriptors and output-frame targets of every clip, split per clip (last frames held out).
+
+    The output frames' follow weights (:func:`follow_weights`) come from the height of each
+    vertex in the root frame, averaged over the training frames of every clip.
+    """
     if not clips:
         raise InputError("Joint2Coarse needs at least one (motion, proxy cache) pair")
     n_vertices = clips[0].proxy.shape[1]
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("td", "tv", "vd", "vv")}
+    frames = []  # per clip: descriptors, origin, heading, tilt, training frame count
+    height_sum, height_count = np.zeros(n_vertices), 0
     for clip in clips:
         if clip.proxy.shape[1] != n_vertices:
             raise InputError(
@@ -138,9 +155,18 @@ def prepare_data(clips: Sequence[Joint2CoarseClip], config: Joint2CoarseConfig) 
         desc, origin, heading = motion_descriptors(
             clip.joints, clip.root_rotations, config.window, config.stride
         )
-        local = to_root_frame(clip.proxy, origin, heading).reshape(len(desc), -1)
-        local = local.astype(np.float32)
         n_train = split_frames(clip.num_frames, config.val_fraction)
+        rooted = to_root_frame(clip.proxy[:n_train], origin[:n_train], heading[:n_train])
+        height_sum += rooted[..., 1].sum(0)
+        height_count += n_train
+        frames.append((desc, origin, heading, tilt_rotvecs(clip.root_rotations, heading), n_train))
+    follow = np.zeros(n_vertices, np.float32)
+    if config.tilt_follow > 0:
+        follow = follow_weights(height_sum / height_count, config.tilt_follow)
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("td", "tv", "vd", "vv")}
+    for clip, (desc, origin, heading, tilt, n_train) in zip(clips, frames):
+        local = to_output_frame(clip.proxy, origin, heading, tilt, follow)
+        local = local.reshape(len(desc), -1).astype(np.float32)
         parts["td"].append(desc[:n_train])
         parts["tv"].append(local[:n_train])
         parts["vd"].append(desc[n_train:])
@@ -151,6 +177,7 @@ def prepare_data(clips: Sequence[Joint2CoarseClip], config: Joint2CoarseConfig) 
         val_desc=np.concatenate(parts["vd"]),
         val_verts=np.concatenate(parts["vv"]),
         n_vertices=n_vertices,
+        follow=follow,
     )
 
 
@@ -213,6 +240,7 @@ class _Trainer:
         torch.manual_seed(config.seed)
         self.net = Joint2CoarseNet(config, data.n_vertices, d)
         self.net.set_statistics(*normalisation_statistics(data, config.std_floor))
+        self.net.follow.copy_(torch.from_numpy(data.follow))
         self.shuffle = torch.Generator().manual_seed(config.seed + 1)
         self.td = torch.from_numpy(data.train_desc)
         self.tx = self.net.normalise_vertices(torch.from_numpy(data.train_verts))
