@@ -4,7 +4,8 @@ Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600
 [--threads 1 2] [--output-basis 256 0]``
 
 Times the paper-sized network (widths at full size for 2048+ vertices) with random weights
-(speed does not depend on what the weights are), once per ``--output-basis`` (default: the
+(speed does not depend on what the weights are) and output frames that follow the hips' tilt
+(``tilt_follow``: a rotation per vertex per frame), once per ``--output-basis`` (default: the
 config's, then 0, the paper's full last layer), with 1 and then 2
 threads: streaming (:class:`Joint2CoarseStream`, float32 and bfloat16) and batched
 (:func:`predict_proxy`). Prints median and 95th percentile milliseconds per frame, both wall
@@ -106,6 +107,9 @@ def main() -> None:
         config = replace(base, output_basis=k)
         torch.manual_seed(0)
         net = Joint2CoarseNet(config, args.vertices, config.num_samples * 57).eval()
+        # Output frames that follow the hips' tilt, as a trained default model has (the tilt
+        # costs a per-vertex rotation per frame; random weights would leave it off).
+        net.follow.copy_(torch.linspace(config.tilt_follow, 0.0, args.vertices))
         params = sum(p.numel() for p in net.motion_encoder.parameters())
         params += sum(p.numel() for p in net.shape_decoder.parameters())
         params += sum(b.numel() for b in net.shape_decoder.buffers())

@@ -222,12 +222,18 @@ def rotate_partially(points: np.ndarray, rotvecs: np.ndarray, fractions: np.ndar
     (T, N, 3) float64
     """
     p = np.asarray(points, np.float64)
+    rotvecs = np.asarray(rotvecs, np.float64)
     angle = np.linalg.norm(rotvecs, axis=-1)
-    k = (rotvecs / np.where(angle > 0.0, angle, 1.0)[:, None])[:, None, :]  # (T, 1, 3)
-    a = np.asarray(fractions, np.float64)[None, :] * angle[:, None]  # (T, N)
-    c, s = np.cos(a)[..., None], np.sin(a)[..., None]
-    kp = np.sum(k * p, -1, keepdims=True)
-    return p * c + np.cross(k, p) * s + k * kp * (1.0 - c)
+    k = rotvecs / np.where(angle > 0.0, angle, 1.0)[:, None]  # (T, 3) unit axes
+    a = np.asarray(fractions, np.float64)[None, :, None] * angle[:, None, None]  # (T, N, 1)
+    # k x p and k (k . p) as products with (3, 3) matrices: BLAS, not cross and sum per point.
+    skew = np.zeros((len(k), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    skew -= np.swapaxes(skew, -1, -2)
+    outer = k[:, :, None] * k[:, None, :]
+    cos = np.cos(a)
+    along = np.matmul(p, outer)
+    return (p - along) * cos + np.matmul(p, np.swapaxes(skew, -1, -2)) * np.sin(a) + along
 
 
 def to_output_frame(
