@@ -102,6 +102,12 @@ def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
         assert 0 < m["ssim"]["mean"] <= 1 and m["flicker"]["n"] > 0, name
     assert report["mse_ratio_ours_to_dnr"] > 0
     assert (smoke_project / "eval" / "compare-twirl.png").stat().st_size > 1000
+    # --json: stdout is the report alone (progress on stderr), even when stages rerun.
+    (smoke_project / "eval" / "stage.json").unlink()
+    r = subprocess.run(dng + ["eval", str(smoke_project), "--json"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["methods"].keys() == report["methods"].keys()
+    assert "evaluating twirl" in r.stderr
     missing = tmp_path / "nope.pth"
     r = subprocess.run(
         dng + ["eval", str(smoke_project), "--inception", str(missing)],

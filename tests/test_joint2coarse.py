@@ -190,7 +190,7 @@ def test_output_frames_follow_the_tilt_by_height():
     rest = np.array([[0.0, 0.0, 0.15], [0.2, -0.2, 0.0], [0.0, -0.6, 0.3]])
     proxy = walk_joints[:, :1].astype(np.float64) + np.einsum("tij,vj->tvi", root, rest)
     clip = Joint2CoarseClip(walk_joints, root.astype(np.float32), proxy.astype(np.float32))
-    cfg = replace(SMALL, window=2, val_fraction=0.0)
+    cfg = replace(SMALL, window=2, val_fraction=0.0, tilt_follow=1.0)
     verts = prepare_data([clip], cfg).train_verts.reshape(t, 3, 3)
     assert_close(verts[:, 0], np.broadcast_to(rest[0], (t, 3)), atol=1e-5, what="waistband")
     assert np.ptp(verts[:, 2], axis=0).max() > 0.1, "the hem is in the heading frame"

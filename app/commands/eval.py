@@ -39,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import json
+    import sys
     from dataclasses import replace
     from pathlib import Path
 
@@ -68,12 +69,14 @@ def run(args: argparse.Namespace) -> int:
         settings = project.settings()
         settings["pipeline"] = config.as_params()
         project.save_settings(settings)  # the next dng eval (and the demo) keep them
+    # With --json, stdout carries only the report (a pipeline parses it); progress goes to stderr.
+    log = (lambda message: print(message, file=sys.stderr, flush=True)) if args.json else print
     for m in available_test_motions(config):
-        stage_simulate(project, config, m.name, "target", print)
-        stage_testset(project, config, m.name, print)
+        stage_simulate(project, config, m.name, "target", log)
+        stage_testset(project, config, m.name, log)
     for name in config.ablations:
-        stage_ablation(project, config, name, print)
-    report = stage_eval(project, config, print)
+        stage_ablation(project, config, name, log)
+    report = stage_eval(project, config, log)
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
