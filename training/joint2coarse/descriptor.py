@@ -172,7 +172,10 @@ def tilt_rotvecs(root_rotations: np.ndarray, heading: np.ndarray) -> np.ndarray:
     s = np.linalg.norm(v, axis=-1)
     c = np.clip(0.5 * (np.trace(m, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
     angle = np.arctan2(s, c)
-    out = v * np.where(s > 1e-300, angle / np.maximum(s, 1e-300), 1.0)[:, None]
+    scale = np.ones_like(s)  # angle / sin(angle), 1 in the limit of no tilt
+    turned = s > 0.0
+    scale[turned] = angle[turned] / s[turned]
+    out = v * scale[:, None]
     wide = c < 0.0  # past 90 degrees sin(angle) loses the axis: (sym - c I) = (1 - c) k k^T
     if wide.any():
         sym = 0.5 * (m[wide] + np.swapaxes(m[wide], -1, -2)) - c[wide, None, None] * np.eye(3)
@@ -246,9 +249,9 @@ def to_output_frame(
     """World proxy vertices into the frames Joint2Coarse predicts them in.
 
     Vertex i of frame t is expressed in ``R_i = heading (heading^T root)^follow[i]``: the
-    heading frame turned by ``follow[i]`` of the root's tilt. So the waistband (follow 1) moves
-    with the pelvis, and the hem (follow 0) only with the heading. With ``follow`` None (or all
-    zero) it is :func:`to_root_frame`, the paper's frame.
+    heading frame turned by ``follow[i]`` of the root's tilt. So the waistband (the largest
+    follow) tilts with the pelvis, and the hem (follow 0) turns only with the heading. With
+    ``follow`` None (or all zero) it is :func:`to_root_frame`, the paper's frame.
 
     Parameters
     ----------
