@@ -45,20 +45,21 @@ class Joint2CoarseConfig(PlainConfig):
     and roll), not only its heading: the top of the garment (the waistband) takes this fraction
     of the tilt, falling linearly with height to none at the hem
     (:func:`~training.joint2coarse.descriptor.to_output_frame`). 0 is the paper's root frame
-    for every vertex. Measured on the quick data set, CMU 01_01 (pelvis pitched 22 degrees on
-    average, against 3 to 9 in the training clips), J2C seeds 1 and 2:
+    for every vertex. Measured on the quick data set (``dng demo``), CMU 01_01 (its pelvis is
+    pitched 22 degrees on average, against 3 to 9 in the training clips), J2C seeds 0, 1, 2:
 
-    ==========  =================  ===========  =========================
-    follow      mean error (mm)    p95 (mm)     our image MSE, its proxy
-    ==========  =================  ===========  =========================
-    0           64.7, 70.8         128, 149     0.0081, 0.0090
-    0.5         56.2, 57.4         121, 126     0.0081, 0.0081
-    1           54.9, 55.0         134, 134     0.0084, 0.0093
-    ==========  =================  ===========  =========================
+    ==========  ==================  =============  ==========================
+    follow      mean error (mm)     p95 (mm)       our image MSE, its proxy
+    ==========  ==================  =============  ==========================
+    0           64.5, 64.7, 70.8    134, 128, 149  0.0086, 0.0081, 0.0090
+    0.5         52.3, 56.2, 57.4    116, 121, 126  0.0081, 0.0081, 0.0081
+    1           54.8, 54.9, 55.0    131, 134, 134  0.0090, 0.0084, 0.0093
+    ==========  ==================  =============  ==========================
 
-    At 1 the waistband fits best (CMU waist band 43 -> 17 mm) but the middle of the skirt bends
-    with the full half-tilt and the rendered images get worse; 0.5 keeps most of the gain and
-    the best images. The twirl has no tilt: it changes only within seed noise. Model files
+    At 1 the waistband fits best (CMU's top quarter of vertices: 43 -> 17 mm), but the
+    predicted skirt comes out narrower than the simulated one (by 13 to 18 mm around its middle,
+    against 7 mm at 0) and every method's images get worse; 0.5 keeps most of the gain and gives
+    the best images. The twirl has no tilt, so it changes only within seed noise. Model files
     written before this field existed read as 0."""
     width_reference_vertices: int = 2048
     """Proxy vertex count at which ``encoder_widths`` apply in full. Smaller proxies scale every
