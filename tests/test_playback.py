@@ -83,9 +83,19 @@ def test_render_and_streaming(playback, smoke_project):
     cam = pb.default_camera(2, SIZE, SIZE, azimuth_deg=30)
     pb.renderer.reset()
     start = pb.renderer.encodes
-    images = [pb.render(t, cam) for t in range(2, 6)]
+    calls = []  # (frame, previous) as the renderer got them
+    render = pb.renderer.render
+    pb.renderer.render = lambda c, f, p=None: calls.append((f, p)) or render(c, f, p)
+    try:
+        images = [pb.render(t, cam) for t in range(2, 6)]
+    finally:
+        del pb.renderer.render
     encodes = pb.renderer.encodes - start
-    assert encodes < 2 * len(images)  # t-1's latent is reused when the crop stays
+    # Frame t-1 is passed as the very object the renderer saw, so its latent can be reused.
+    assert all(prev is calls[i][0] for i, (_, prev) in enumerate(calls[1:]))
+    # It is reused exactly where the crop box stays put (the first frame encodes t-1 too).
+    boxes = [pb.renderer.crop_box(cam, f) for f, _ in calls]
+    assert encodes == 2 + sum(1 if a == b else 2 for a, b in zip(boxes, boxes[1:]))
     assert set(pb.last_timings) >= {"joint2coarse", "background", "raster+network", "total"}
     img = images[-1]
     bg = pb.background(5, cam)
