@@ -45,8 +45,10 @@ class Joint2CoarseConfig(PlainConfig):
     and roll), not only its heading: the top of the garment (the waistband) takes this fraction
     of the tilt, falling linearly with height to none at the hem
     (:func:`~training.joint2coarse.descriptor.to_output_frame`). 0 is the paper's root frame
-    for every vertex. Measured on the quick data set (``dng demo``), CMU 01_01 (its pelvis is
-    pitched 22 degrees on average, against 3 to 9 in the training clips), J2C seeds 0, 1, 2:
+    for every vertex. Measured on the quick data set, CMU 01_01 (its pelvis is pitched 22
+    degrees on average, against 3 to 9 in the training clips), J2C seeds 0, 1, 2: ``dng demo
+    --out P``, then ``dng train joint2coarse P --set seed=S --set tilt_follow=F`` and ``dng
+    eval P --json``:
 
     ==========  ==================  =============  ==========================
     follow      mean error (mm)     p95 (mm)       our image MSE, its proxy
@@ -56,11 +58,10 @@ class Joint2CoarseConfig(PlainConfig):
     1           54.8, 54.9, 55.0    131, 134, 134  0.0090, 0.0084, 0.0093
     ==========  ==================  =============  ==========================
 
-    At 1 the waistband fits best (CMU's top quarter of vertices: 43 -> 17 mm), but the
-    predicted skirt comes out narrower than the simulated one (by 13 to 18 mm around its middle,
-    against 7 mm at 0) and every method's images get worse; 0.5 keeps most of the gain and gives
-    the best images. The twirl has no tilt, so it changes only within seed noise. Model files
-    written before this field existed read as 0."""
+    At 1 the waistband fits best, but the predicted skirt comes out narrower than the simulated
+    one and every method's images get worse; 0.5 keeps most of the gain and gives the best
+    images. The twirl has no tilt, so it changes only within seed noise. Model files written
+    before this field existed read as 0."""
     width_reference_vertices: int = 2048
     """Proxy vertex count at which ``encoder_widths`` apply in full. Smaller proxies scale every
     shape-network width by ``n_vertices / width_reference_vertices`` (rounded up), never below
