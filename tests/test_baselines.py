@@ -112,7 +112,8 @@ def _stop_at(n):
 
 @pytest.mark.parametrize("kind", ["pix2pix", "dnr-gan"])
 def test_resume_gives_the_weights_of_an_uninterrupted_run(kind, data, tmp_path):
-    cfg = preset(kind, "tiny").replace(steps=8, checkpoint_every=3, log_every=2)
+    # Rates decay from step 4: the resumed run must follow the same schedule.
+    cfg = preset(kind, "tiny").replace(steps=8, checkpoint_every=3, log_every=2, lr_decay_from=0.5)
     full = train_baseline(kind, data, tmp_path / "full", cfg, progress=False)
     with pytest.raises(_Stop):
         train_baseline(kind, data, tmp_path / "cut", cfg, progress=False, callback=_stop_at(5))
@@ -196,3 +197,17 @@ def test_load_for_evaluation_treats_our_renderer_the_same_way(tmp_path):
     p2p = build_model(preset("pix2pix", "tiny"))
     save_baseline(tmp_path / "pix2pix.pt", p2p)
     assert load_for_evaluation(tmp_path / "pix2pix.pt").render(batch).shape == (2, 3, 32, 32)
+
+
+def test_baseline_learning_rates_follow_the_schedule(data, tmp_path, monkeypatch):
+    import training.baselines.train as train_module
+
+    seen = []
+    real = train_module.set_lr
+    monkeypatch.setattr(train_module, "set_lr", lambda opt, lr: (seen.append(lr), real(opt, lr)))
+    cfg = preset("dnr", "tiny").replace(steps=4, lr_g=1e-3, lr_decay_from=0.5)
+    train_baseline("dnr", data, tmp_path, cfg, progress=False)
+    assert seen[::2] == pytest.approx([1e-3, 1e-3, 1e-3, 5e-4])  # the generator's, per step
+    assert preset("dnr", "cpu").lr_decay_from == 1.0  # measured: decay made the baselines worse
+    with pytest.raises(InputError, match="lr_decay_from"):
+        preset("pix2pix", "tiny").replace(lr_decay_from=2)

@@ -195,6 +195,15 @@ def test_train_renderer_cli_with_new_settings(smoke, tmp_path):
         assert r.returncode == 2 and message in r.stderr, (bad, r.stderr)
     assert project_config(Project(copy)).renderer_overrides["w_gan"] == 0  # refused: unchanged
 
+    base = [sys.executable, "-m", "app.cli", "train", "baselines", str(copy), "--kinds", "dnr"]
+    r = subprocess.run(base + ["--set", "lr_decay_from=1.5"], capture_output=True, text=True)
+    assert r.returncode == 2 and "lr_decay_from=1.5 must be a number in [0, 1]" in r.stderr
+    r = subprocess.run(base + ["--set", "lr_decay_from=0.5"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert project_config(Project(copy)).baseline_overrides == {"lr_decay_from": 0.5}
+    report = json.loads((copy / "baselines" / "dnr" / "report.json").read_text())
+    assert report["config"]["lr_decay_from"] == 0.5 and report["steps"] == 6
+
     j2c = [sys.executable, "-m", "app.cli", "train", "joint2coarse", str(copy)]
     r = subprocess.run(j2c + ["--set", "dropuot=0.2"], capture_output=True, text=True)
     assert r.returncode == 2 and "unknown joint2coarse config keys ['dropuot']" in r.stderr

@@ -73,7 +73,8 @@ def test_training_lowers_the_loss_with_perceptual_on(data, tmp_path):
 
 
 def test_resume_after_kill_gives_the_same_weights(data, tmp_path):
-    cfg = TINY.replace(steps=9, checkpoint_every=4, log_every=2, preview_every=0)
+    # The learning rates decay from step 4.5: the resumed run must follow the same schedule.
+    cfg = TINY.replace(steps=9, checkpoint_every=4, log_every=2, preview_every=0, lr_decay_from=0.5)
     full = train_renderer(data, tmp_path / "a", cfg, progress=False)
     assert full.perceptual is False and _rows(full.log_path)[0]["perceptual"] == "off"
 
@@ -223,3 +224,20 @@ def test_sigkill_mid_run_then_rerun_continues_to_the_same_weights(tmp_path):
     for part in ("generator", "discriminator"):
         for k in a[part]:
             assert torch.equal(a[part][k], b[part][k]), f"{part}.{k}"
+
+
+def test_learning_rates_follow_the_schedule(data, tmp_path, monkeypatch):
+    import training.renderer.train as train_module
+
+    seen = []
+    real = train_module.set_lr
+    monkeypatch.setattr(train_module, "set_lr", lambda opt, lr: (seen.append(lr), real(opt, lr)))
+    cfg = TINY.replace(steps=4, lr_g=1e-3, lr_d=2e-3, lr_decay_from=0.5, preview_every=0)
+    res = train_renderer(data, tmp_path, cfg, progress=False)
+    # (G, D) per step: constant for steps 0 and 1, then 2/2 and 1/2 of the base rates.
+    assert seen == pytest.approx([1e-3, 2e-3, 1e-3, 2e-3, 1e-3, 2e-3, 5e-4, 1e-3])
+    assert PRESETS["cpu"].lr_decay_from == 0.5 and PRESETS["paper"].lr_decay_from == 1.0
+    assert res.steps == 4
+    for bad in (-0.1, 1.5, float("nan"), True, "half"):
+        with pytest.raises(InputError, match="lr_decay_from"):
+            TINY.replace(lr_decay_from=bad)

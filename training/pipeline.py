@@ -115,6 +115,9 @@ class PipelineConfig:
     baselines: tuple[str, ...] = ("pix2pix", "dnr", "dnr-gan")
     """Baselines trained on the same data set for the comparison (``training.baselines.KINDS``);
     each trains ``renderer_steps`` steps, like ours."""
+    baseline_overrides: dict = field(default_factory=dict)
+    """Baseline configuration fields changed from their presets, for every baseline, e.g.
+    ``{"lr_decay_from": 0.5}`` (``dng train baselines --set lr_decay_from=0.5``)."""
     ablations: tuple[str, ...] = ()
     """Renderer ablations trained and scored beside ours (:data:`ABLATION_KINDS`):
     ``no-motion``, ``views-N``, ``template-NAME``. Each costs about one renderer training."""
@@ -812,6 +815,8 @@ def baseline_config(config: PipelineConfig, kind: str):
     if kind == "dnr-gan":  # "DNR with our loss": the weights ours trains with, overrides included
         loss = ("w_l1", "w_perceptual", "w_fm", "w_gan")
         cfg = cfg.replace(**{k: getattr(ours, k) for k in loss})
+    if config.baseline_overrides:
+        cfg = type(cfg).from_dict({**cfg.to_dict(), **config.baseline_overrides})
     return cfg
 
 

@@ -52,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("project", help="project folder (made by dng demo)")
     b.add_argument("--kinds", nargs="+", help="baselines to train (default: the project's)")
+    _add_set(b, "baseline", "--set lr_decay_from=0.5")
     b.set_defaults(handler=run_baselines)
 
 
@@ -82,7 +83,8 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
 def _config_with(args: argparse.Namespace, network: str = "renderer"):
     """The project and its settings with this command's changes; saved when there are any.
 
-    ``network`` (``renderer`` or ``joint2coarse``) is what ``--preset`` and ``--set`` change.
+    ``network`` (``renderer``, ``joint2coarse`` or ``baseline``) is what ``--preset`` and
+    ``--set`` change.
     """
     from dataclasses import replace
 
@@ -160,7 +162,7 @@ def run_baselines(args: argparse.Namespace) -> int:
 
     from training.pipeline import stage_baselines
 
-    project, config = _config_with(args)
+    project, config = _config_with(args, "baseline")
     reports = stage_baselines(project, config, print)
     print(json.dumps({k: {"steps": r["steps"], "seconds_per_step": r["seconds_per_step"]}
                       for k, r in reports.items()}, indent=1))  # fmt: skip

@@ -38,6 +38,7 @@ from training.baselines.pix2pix import PIX2PIX_PRESETS, Pix2Pix, Pix2PixConfig
 from training.csvlog import append_rows, truncate_rows
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.data import CUR
+from training.schedule import lr_scale, set_lr
 
 KINDS = ("pix2pix", "dnr", "dnr-gan")
 PRESETS: dict[str, dict[str, BaselineConfig]] = {
@@ -241,6 +242,9 @@ class _Trainer:
     def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float] | None:
         """One step; the losses, or None when the guard skipped it."""
         cfg = self.config
+        scale = lr_scale(self.step, self.steps, cfg.lr_decay_from)
+        set_lr(self.opt_g, cfg.lr_g * scale)
+        set_lr(self.opt_d, cfg.lr_d * scale)
         self.model.train()
         real_t = batch["target"][:, CUR]
         fake, aux = self.model(batch)

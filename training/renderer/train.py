@@ -43,6 +43,7 @@ from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perce
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
 from training.renderer.model import PatchDiscriminator, RenderNet, background_finetune_parameters
+from training.schedule import lr_scale, set_lr
 
 CHECKPOINT_FORMAT = "renderer-train/1"
 MODEL_FORMAT = "renderer-model/1"
@@ -269,6 +270,9 @@ class _Trainer:
     def train_step(self, batch: RenderBatch) -> dict[str, float] | None:
         """One step; the losses, or None when the guard skipped it."""
         cfg = self.config
+        scale = lr_scale(self.step, self.steps, cfg.lr_decay_from)
+        set_lr(self.opt_g, cfg.lr_g * scale)
+        set_lr(self.opt_d, cfg.lr_d * scale)
         self.net.train()
         self.disc.train()
         real_t = batch.target[:, CUR]
