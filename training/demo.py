@@ -274,6 +274,14 @@ def _fmt(summary: dict | None, digits: int = 4) -> str:
     return f"{summary['mean']:.{digits}f} ± {summary['std']:.{digits}f}"
 
 
+def _schedule(cfg: dict, steps: int) -> str:
+    """How a run's learning rates moved (``training.schedule``), from its config dict."""
+    start = cfg.get("lr_decay_from", 1.0)  # reports from before the option: constant
+    if start >= 1.0:
+        return "constant"
+    return f"falling linearly to zero from step {round(start * steps)}"
+
+
 def _renderer_markdown(report: dict) -> list[str]:
     """The renderer's training and the comparison table (the paper's Table 1)."""
     r, ev = report.get("renderer"), report.get("evaluation")
@@ -290,14 +298,19 @@ def _renderer_markdown(report: dict) -> list[str]:
         f"{r['skipped_steps']} steps skipped by the NaN guard). "
         f"Loss {cfg['w_l1']:g} L1"
         + (f" + {cfg['w_perceptual']:g} perceptual" if r["perceptual"] else "")
-        + f" + {cfg['w_fm']:g} feature matching + {cfg['w_gan']:g} GAN. "
+        + f" + {cfg['w_fm']:g} feature matching + {cfg['w_gan']:g} GAN; "
+        f"Adam {cfg['lr_g']:g} (network) and {cfg['lr_d']:g} (discriminator), "
+        f"{_schedule(cfg, r['steps'])}. "
         f"L1 {r['first']['l1']:.4f} at step {r['first']['step']:.0f} -> {r['last']['l1']:.4f} "
         f"at step {r['last']['step']:.0f}.",
         "",
         "![loss](renderer/loss.png)",
     ]
     for kind, b in (report.get("baselines") or {}).items():
-        lines.append(f"- baseline `{kind}`: {b['steps']} steps, {b['seconds_per_step']:.2f} s/step")
+        lines.append(
+            f"- baseline `{kind}`: {b['steps']} steps, {b['seconds_per_step']:.2f} s/step, "
+            f"learning rates {_schedule(b['config'], b['steps'])}"
+        )
     if not ev:
         return lines
     lines += [
