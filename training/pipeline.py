@@ -209,8 +209,9 @@ PRESETS: dict[str, PipelineConfig] = {
     # The adversarial terms weigh a fifth of the paper's (FM 1, GAN 0.1; its L1 10): with no VGG
     # weights here the perceptual half of the reconstruction loss is off, and at 600 steps the
     # full weights cost pixel error. Measured at constant rates on this preset's data set,
-    # simulated proxy, MSE twirl / CMU: 0.0023 / 0.0034 at FM 5, GAN 0.5; 0.0019 / 0.0027 at FM 1, GAN 0.1; 0.0017 /
-    # 0.0025 with L1 alone (dng train renderer PROJECT --set w_fm=1 --set w_gan=0.1, dng eval).
+    # simulated proxy, MSE twirl / CMU: 0.0023 / 0.0034 at FM 5, GAN 0.5; 0.0019 / 0.0027 at
+    # FM 1, GAN 0.1; 0.0017 / 0.0025 with L1 alone (dng train renderer PROJECT --set w_fm=1
+    # --set w_gan=0.1, dng eval).
     "quick": PipelineConfig(
         renderer_steps=600,
         renderer_overrides={"w_fm": 1.0, "w_gan": 0.1},
