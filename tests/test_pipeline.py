@@ -47,7 +47,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     md = (out / "report.md").read_text()
     assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
     assert "the shape autoencoder on its simulated shapes" in md
-    assert "(discriminator), constant." in md  # the tiny preset keeps its rates
+    assert "(discriminator), falling linearly to zero from step 15." in md  # of 30
     assert "- baseline `dnr`: 30 steps" in md and "learning rates constant" in md
     for m in j2c["motions"].values():
         assert 0 < m["autoencoder_error_mm"]["mean_mm"] < m["autoencoder_error_mm"]["p95_mm"]
