@@ -162,7 +162,10 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     studio.wait_idle()
     report["play"] = {
         "seconds": played,
+        # Modulo the clip: 0 when play wrapped round to where it started (a 40-frame clip
+        # at 30 fps for 4 s). frames_shown counts every change of frame.
         "frames_advanced": (studio.frame - f0) % max(studio.num_frames, 1),
+        "frames_shown": studio.play_frames_shown - n3d,
         "view_fps": (studio.play_frames_shown - n3d) / played,
         "live_shown_fps": (studio.live_frames_shown - nlive) / played,
         "live_render_fps": (studio.render_count - nrender) / played,
