@@ -403,6 +403,28 @@ def test_output_basis_sizes_and_principal_basis():
     assert not principal_basis(data[:3], 8)[3:].any()  # 3 samples: rank 3 at most
 
 
+def test_principal_basis_does_not_follow_numpy_blas_threads():
+    # The quick preset's size (900 training shapes of a 1033-vertex proxy): numpy's SVD gave a
+    # float32 basis that differed bit-wise between 1 and 2 OpenBLAS threads, and so trained a
+    # different Joint2Coarse from the same seed depending on OMP_NUM_THREADS. The basis is
+    # computed in torch (one thread here), which does not read that variable.
+    code = (
+        "import hashlib, numpy as np, torch; torch.set_num_threads(1);"
+        "from training.joint2coarse.model import principal_basis;"
+        "x = np.random.default_rng(0).standard_normal((900, 3099)).astype(np.float32);"
+        "print(hashlib.sha256(principal_basis(x, 256).tobytes()).hexdigest())"
+    )
+    digests = set()
+    for threads in ("1", "2"):
+        env = {**os.environ, "OMP_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads}
+        out = subprocess.run(
+            [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True,
+            cwd=Path(__file__).resolve().parents[1],
+        )  # fmt: skip
+        digests.add(out.stdout.strip())
+    assert len(digests) == 1
+
+
 @pytest.mark.parametrize("output_basis", [0, 32])
 def test_frozen_forward_equals_network(output_basis):
     net = _random_net(replace(SMALL, output_basis=output_basis), 120)

@@ -58,6 +58,12 @@ def principal_basis(data: np.ndarray, k: int) -> np.ndarray:
     not depend on the LAPACK sign choice. Rows beyond the data's rank are (about) zero; rows
     beyond ``min(N, D)`` exactly zero.
 
+    The decomposition runs in torch, not numpy: numpy's LAPACK result changes with its BLAS
+    thread count (``OMP_NUM_THREADS``), which no setting of ours controls, and a different basis
+    trains a different Joint2Coarse. torch's follows ``torch.set_num_threads``, which the
+    pipeline pins (``torch_threads``), so a seed gives the same model whatever the environment
+    says.
+
     Parameters
     ----------
     data : (N, D) float
@@ -67,15 +73,15 @@ def principal_basis(data: np.ndarray, k: int) -> np.ndarray:
     -------
     (k, D) float32 with orthogonal rows, in decreasing order of norm (the RMS).
     """
-    x = np.asarray(data, np.float64)
+    x = torch.as_tensor(np.asarray(data, np.float64))
     n, d = x.shape
     if n > d:
-        power, vecs = np.linalg.eigh(x.T @ x)  # ascending
-        rows = vecs[:, ::-1][:, :k].T
-        rms = np.sqrt(np.maximum(power[::-1][:k], 0.0) / n)
+        power, vecs = torch.linalg.eigh(x.T @ x)  # ascending
+        rows = vecs.flip(1)[:, :k].T.numpy()
+        rms = np.sqrt(np.maximum(power.flip(0)[:k].numpy(), 0.0) / n)
     else:
-        _, sv, vh = np.linalg.svd(x, full_matrices=False)
-        rows, rms = vh[:k], sv[:k] / np.sqrt(n)
+        _, sv, vh = torch.linalg.svd(x, full_matrices=False)
+        rows, rms = vh[:k].numpy(), sv[:k].numpy() / np.sqrt(n)
     peak = np.argmax(np.abs(rows), axis=1)
     rows = rows * np.sign(rows[np.arange(len(rows)), peak])[:, None]
     out = np.zeros((k, d), np.float32)
