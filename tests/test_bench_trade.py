@@ -169,7 +169,7 @@ def _fake(name, code=0, error=None):
         from app.bench import add_output_arguments
 
         add_output_arguments(parser)
-        if name == "trade":
+        if name in ("trade", "placement"):
             parser.add_argument("--project", required=True)
         parser.add_argument("--level", type=int, default=3)
 
@@ -196,6 +196,7 @@ def test_bench_all_runs_each_with_defaults(tmp_path, dng, monkeypatch):
         "raster": _fake("raster", error=RuntimeError("boom")),
         "render": _fake("render", code=0),
         "trade": _fake("trade"),
+        "placement": _fake("placement"),
     }
     monkeypatch.setattr(bench_all, "load_benches", lambda names: {n: fakes[n] for n in names})
     out = tmp_path / "all"
@@ -204,11 +205,12 @@ def test_bench_all_runs_each_with_defaults(tmp_path, dng, monkeypatch):
     summary = json.loads(text)  # stdout holds only the summary
     assert summary == json.loads((out / "all.json").read_text())
     by = {r["bench"]: r for r in summary["benches"]}
-    assert list(by) == ["proxy", "sim", "raster", "render", "trade"]
+    assert list(by) == ["proxy", "sim", "raster", "render", "trade", "placement"]
     assert by["proxy"]["ran"] and by["proxy"]["exit_code"] == 0 and by["proxy"]["seconds"] >= 0
     assert by["sim"]["exit_code"] == 2 and "bad garment" in by["sim"]["error"]
     assert by["raster"]["exit_code"] == 1 and "boom" in by["raster"]["error"]
     assert not by["trade"]["ran"] and "project" in by["trade"]["skipped"]
+    assert not by["placement"]["ran"] and "project" in by["placement"]["skipped"]
     args = json.loads((out / "proxy" / "args.json").read_text())
     assert args == {"out": str(out / "proxy"), "json": False, "level": 3}
     assert "proxy table" in err  # the benches' own tables went to stderr

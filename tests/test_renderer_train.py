@@ -70,6 +70,12 @@ def test_training_lowers_the_loss_with_perceptual_on(data, tmp_path):
     assert cfg2 == cfg and disc is not None
     for k, v in res.net.state_dict().items():
         assert torch.equal(net.state_dict()[k], v)
+    # A file from before lr_decay_from existed was trained at constant rates and reads so.
+    assert cfg.lr_decay_from == 0.5
+    payload = torch.load(res.model_path, weights_only=True)
+    del payload["config"]["lr_decay_from"]
+    torch.save(payload, tmp_path / "old.pt")
+    assert load_model(tmp_path / "old.pt")[0] == cfg.replace(lr_decay_from=1.0)
 
 
 def test_resume_after_kill_gives_the_same_weights(data, tmp_path):

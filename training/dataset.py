@@ -78,6 +78,10 @@ class GarmentDataset:
     features : the motion-feature settings (sigma, frame offsets)
     split : None for the training set (``dataset/``), or a test motion's name for its
         evaluation set from unseen cameras (``testset/NAME/``, made by ``stage_testset``)
+    proxy_positions : None, or (T, Vs, 3) float seam-free proxy vertices for every frame of the
+        motion, rendered instead of the ``source``'s cache (which then only names them): what
+        ``dng bench placement`` uses to render proxies between the simulated one and
+        Joint2Coarse's
     """
 
     def __init__(
@@ -86,6 +90,7 @@ class GarmentDataset:
         source: str = "sim",
         features: FeatureConfig | None = None,
         split: str | None = None,
+        proxy_positions: np.ndarray | None = None,
     ):
         from core.camera import camera_from_dict
         from core.motion.load import load_motion
@@ -99,18 +104,27 @@ class GarmentDataset:
             raise InputError(f"no data set here: run the {stage} stage first", index_path)
         index = json.loads(index_path.read_text())
         motion_name = index["motion"]
-        if source == "sim":
+        if source not in ("sim", "joint2coarse"):
+            raise InputError(f"source must be 'sim' or 'joint2coarse', got {source!r}")
+        if proxy_positions is not None:
+            cache = index_path  # what messages about the positions' frame count name
+            positions = np.asarray(proxy_positions)
+            if positions.ndim != 3 or positions.shape[-1] != 3 or not len(positions):
+                raise InputError(
+                    f"proxy positions must be (frames, vertices, 3), got {positions.shape}", cache
+                )
+            if not np.isfinite(positions).all():
+                raise InputError("proxy positions hold NaN or infinite values", cache)
+        elif source == "sim":
             cache = self.root / "sim" / f"{motion_name}-proxy" / "cache.npz"
             if not cache.is_file():
                 raise InputError("no simulated proxy cache", cache)
             positions = np.load(cache)["positions"]
-        elif source == "joint2coarse":
+        else:
             cache = self.root / "joint2coarse" / f"pred-{motion_name}.npz"
             if not cache.is_file():
                 raise InputError(f"no Joint2Coarse prediction of {motion_name}", cache)
             positions = np.load(cache)["positions"]
-        else:
-            raise InputError(f"source must be 'sim' or 'joint2coarse', got {source!r}")
         self.source = source
         self.split = split
         self.proxy = load_proxy_frames(self.root, positions)

@@ -1,8 +1,8 @@
 """``dng bench all``: every other bench with its default settings, one subfolder each.
 
-Runs ``proxy``, ``sim``, ``raster``, ``render`` and, with ``--project``, ``trade`` (which needs
-a trained project) one after another, each into ``OUT/NAME/`` with the arguments its own
-``add_arguments`` gives by default, and writes ``OUT/all.json``: for each bench whether it ran,
+Runs ``proxy``, ``sim``, ``raster``, ``render`` and, with ``--project``, ``trade`` and
+``placement`` (which need a trained project) one after another, each into ``OUT/NAME/`` with
+the arguments its own ``add_arguments`` gives by default, and writes ``OUT/all.json``: for each bench whether it ran,
 its exit code (2 for bad input, 1 for a crash, whose message is kept), its wall seconds and the
 machine's load average before it. A failing bench does not stop the others. With the defaults
 this takes a long time (the simulation bench alone runs garments of 10k and 30k vertices);
@@ -25,7 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     add_output_arguments(parser)
     parser.add_argument(
-        "--project", default=None, help="a trained project: also runs the trade bench on it"
+        "--project",
+        default=None,
+        help="a trained project: also runs the trade and placement benches on it",
     )
     parser.add_argument(
         "--only", nargs="+", default=None, metavar="NAME", help="run only these benches"
@@ -57,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
+    from app.bench import PROJECT_BENCHES
     from core.errors import InputError
     from core.fileio import write_json
 
@@ -77,10 +80,10 @@ def run(args: argparse.Namespace) -> int:
             record["skipped"] = "module not written yet"
             continue
         argv = ["--out", str(out / name)]
-        if name == "trade":
+        if name in PROJECT_BENCHES:
             if not args.project:
                 record["skipped"] = "needs --project"
-                say("== trade: skipped (needs --project)")
+                say(f"== {name}: skipped (needs --project)")
                 continue
             argv += ["--project", str(args.project)]
         record["load_average_before"] = list(os.getloadavg())

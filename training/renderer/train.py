@@ -114,7 +114,9 @@ def load_model(
         CHECKPOINT_FORMAT,
     ):
         raise InputError(f"not a renderer model ({MODEL_FORMAT})", path)
-    config = RendererConfig.from_dict(payload["config"])
+    # Files written before ``lr_decay_from`` existed were trained at constant rates: they read
+    # as 1.0, so a fine-tune that starts from one keeps its schedule.
+    config = RendererConfig.from_dict({"lr_decay_from": 1.0, **payload["config"]})
     net = RenderNet(config)
     try:
         net.load_state_dict(payload["generator"])
