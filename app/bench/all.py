@@ -2,11 +2,11 @@
 
 Runs ``proxy``, ``sim``, ``raster``, ``render`` and, with ``--project``, ``trade`` and
 ``placement`` (which need a trained project) one after another, each into ``OUT/NAME/`` with
-the arguments its own ``add_arguments`` gives by default, and writes ``OUT/all.json``: for each bench whether it ran,
-its exit code (2 for bad input, 1 for a crash, whose message is kept), its wall seconds and the
-machine's load average before it. A failing bench does not stop the others. With the defaults
-this takes a long time (the simulation bench alone runs garments of 10k and 30k vertices);
-``--only NAME ...`` picks some.
+the arguments its own ``add_arguments`` gives by default, and writes ``OUT/all.json``: for each
+bench whether it ran, its exit code (2 for bad input, 1 for a crash, whose message is kept), its
+wall seconds and the machine's load average before it. A failing bench does not stop the others.
+With the defaults this takes a long time (the simulation bench alone runs garments of 10k and 30k
+vertices); ``--only NAME ...`` picks some.
 """
 
 from __future__ import annotations

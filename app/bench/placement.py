@@ -289,18 +289,19 @@ def run(args: argparse.Namespace) -> int:
             positions = {m: blend_positions(p["sim"], p["pred"], s) for m, p in proxies.items()}
         errors = {m: mean_error_mm(positions[m], proxies[m]["sim"]) for m in motions}
         scored = score(project, models, motions, positions)
-        mse = {name: s_["mse"]["mean"] for name, s_ in scored["methods"].items()}
+        summaries = scored["methods"]
+        mse = {name: summary["mse"]["mean"] for name, summary in summaries.items()}
         row = {
             "label": label,
             "scale": s,
             "error_mm": errors,
             "error_mm_pooled": sum(errors[m] * frames[m] for m in motions) / sum(frames.values()),
             "mse": mse,
-            "ssim": {name: s_["ssim"]["mean"] for name, s_ in scored["methods"].items()},
-            "psnr": {name: s_["psnr"]["mean"] for name, s_ in scored["methods"].items()},
+            "ssim": {name: summary["ssim"]["mean"] for name, summary in summaries.items()},
+            "psnr": {name: summary["psnr"]["mean"] for name, summary in summaries.items()},
             "ratios": ratios(mse),
             "motions": scored["motions"],
-            "metrics": scored["methods"],
+            "metrics": summaries,
             "seconds": time.perf_counter() - start,
         }
         rows.append(row)
@@ -321,18 +322,20 @@ def run(args: argparse.Namespace) -> int:
 def _header(methods: list[str]) -> str:
     cells = [f"{'proxy':<12}", f"{'error mm':>8}"]
     cells += [f"{m + ' MSE':>{max(10, len(m) + 4)}}" for m in methods]
-    cells += [f"{'ours/' + m:>{max(9, len(m) + 5)}}" for m in methods if m != "ours"]
+    if "ours" in methods:
+        cells += [f"{'ours/' + m:>{max(9, len(m) + 5)}}" for m in methods if m != "ours"]
     return " ".join(cells)
 
 
 def _format_row(row: dict, methods: list[str]) -> str:
     cells = [f"{row['label']:<12}", f"{row['error_mm_pooled']:>8.1f}"]
     cells += [f"{row['mse'][m]:>{max(10, len(m) + 4)}.5f}" for m in methods]
-    cells += [
-        f"{row['ratios'].get('ours/' + m, float('nan')):>{max(9, len(m) + 5)}.3f}"
-        for m in methods
-        if m != "ours"
-    ]
+    if "ours" in methods:
+        cells += [
+            f"{row['ratios'].get('ours/' + m, float('nan')):>{max(9, len(m) + 5)}.3f}"
+            for m in methods
+            if m != "ours"
+        ]
     return " ".join(cells)
 
 
