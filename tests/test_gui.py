@@ -8,6 +8,7 @@ import os
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -205,23 +206,45 @@ def test_eta_counts_stages():
 # Marked gui: the default test command runs them under its own Xvfb (software Vulkan).
 
 
+#: Seconds one tour may take. It takes about 1.5 minutes on the 2-core machine during the full
+#: test run; past this it has hung.
+TOUR_TIMEOUT_S = 300
+
+
 @pytest.fixture(scope="module")
 def tour(smoke_project, tmp_path_factory):
     """Run ``dng gui PROJECT --tour`` once on a copy of the smoke project (the tour saves
-    window settings into project.json, so the shared project is not touched)."""
+    window settings into project.json, so the shared project is not touched).
+
+    A tour that hangs is run once more, with a warning. Software Vulkan can freeze a window for
+    good: in one CI run the main thread waited in Filament's ``SyncThreads`` (from
+    ``Window::DrawOnce``) while a render thread spun at 100% CPU, from the first frame on; the
+    same code had passed the full test run and CI just before. A second hang fails the test.
+    """
     root = tmp_path_factory.mktemp("gui")
     project = root / "project"
     shutil.copytree(smoke_project, project)
     out = root / "tour"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run(
-        [sys.executable, "-m", "app.cli", "gui", str(project), "--tour", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env=env,
-        cwd=Path(__file__).resolve().parents[1],
-    )
+    command = [sys.executable, "-m", "app.cli", "gui", str(project), "--tour", str(out)]
+    cwd = Path(__file__).resolve().parents[1]
+    try:
+        proc = subprocess.run(
+            command, capture_output=True, text=True, timeout=TOUR_TIMEOUT_S, env=env, cwd=cwd
+        )
+    except subprocess.TimeoutExpired as exc:
+        stderr = exc.stderr or ""
+        if isinstance(stderr, bytes):
+            stderr = stderr.decode(errors="replace")
+        warnings.warn(
+            f"the GUI tour hung for {TOUR_TIMEOUT_S} s and runs again; its output ended: "
+            f"{stderr[-600:]}",
+            stacklevel=1,
+        )
+        shutil.rmtree(out, ignore_errors=True)
+        proc = subprocess.run(
+            command, capture_output=True, text=True, timeout=TOUR_TIMEOUT_S, env=env, cwd=cwd
+        )
     report_file = out / "tour.json"
     assert report_file.is_file(), proc.stderr[-4000:]
     report = json.loads(report_file.read_text())
