@@ -18,3 +18,19 @@ def add_output_arguments(parser) -> None:
         help=f"folder for the JSON table and PNG plot (default: {DEFAULT_OUT})",
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the table as JSON on stdout")
+
+
+def project_test_sets(root, config) -> list[str]:
+    """The project's test motions that have a test set (``testset/NAME/samples.json``): those of
+    ``config.test_motions`` first, in its order, then any others by name. InputError when there
+    is none."""
+    from pathlib import Path
+
+    from core.errors import InputError
+
+    root = Path(root)
+    have = sorted(p.parent.name for p in (root / "testset").glob("*/samples.json"))
+    if not have:
+        raise InputError("no test set: run dng demo (the testset stage) first", root / "testset")
+    order = [m.name for m in config.test_motions if m.name in have]
+    return order + [n for n in have if n not in order]

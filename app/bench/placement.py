@@ -90,12 +90,6 @@ def blend_positions(sim: np.ndarray, pred: np.ndarray, scale: float) -> np.ndarr
     return (sim + scale * (pred - sim)).astype(np.float32)
 
 
-def mean_error_mm(positions: np.ndarray, reference: np.ndarray) -> float:
-    """Mean per-vertex distance (mm) between two (T, V, 3) proxies in metres."""
-    d = np.asarray(positions, np.float64) - np.asarray(reference, np.float64)
-    return float(np.linalg.norm(d, axis=-1).mean() * 1e3)
-
-
 def check_scales(scales) -> list[float]:
     """Sorted distinct scales; InputError for a negative or non-finite one."""
     from core.errors import InputError
@@ -145,18 +139,16 @@ def project_methods(project, config, names: list[str] | None) -> dict[str, Path]
 
 def project_motions(root: Path, config, names: list[str] | None) -> list[str]:
     """Test motions with a test set, a Joint2Coarse prediction and a simulated proxy."""
+    from app.bench import project_test_sets
     from core.errors import InputError
 
-    have = sorted(p.parent.name for p in (root / "testset").glob("*/samples.json"))
-    if not have:
-        raise InputError("no test set: run dng demo (the testset stage) first", root / "testset")
-    order = [m.name for m in config.test_motions if m.name in have]
-    order += [n for n in have if n not in order]
+    order = project_test_sets(root, config)
     if names is not None:
-        missing = [n for n in names if n not in have]
+        missing = [n for n in names if n not in order]
         if missing:
             raise InputError(
-                f"no test set for {', '.join(missing)}; have {', '.join(have)}", root / "testset"
+                f"no test set for {', '.join(missing)}; have {', '.join(sorted(order))}",
+                root / "testset",
             )
         order = list(dict.fromkeys(names))
     for name in order:
@@ -171,6 +163,7 @@ def project_motions(root: Path, config, names: list[str] | None) -> list[str]:
 
 def _proxies(project, motions: list[str], autoencoder: bool) -> dict[str, dict]:
     """motion -> {"sim": (T, V, 3), "pred": ..., and "autoencoder": ... when asked}."""
+    from core.errors import InputError
     from core.sim import load_cache
     from training.joint2coarse import joint2coarse_inputs, load_model, reconstruct_proxy
     from training.pipeline import load_project_motion
@@ -179,8 +172,13 @@ def _proxies(project, motions: list[str], autoencoder: bool) -> dict[str, dict]:
     out = {}
     for name in motions:
         sim = load_cache(project.path(f"sim/{name}-proxy", "cache.npz")).positions
-        pred = np.load(project.path("joint2coarse", f"pred-{name}.npz"))["positions"]
-        blend_positions(sim, pred, 0.0)  # InputError when the shapes disagree
+        pred_file = project.path("joint2coarse", f"pred-{name}.npz")
+        pred = np.load(pred_file)["positions"]
+        if pred.shape != sim.shape:
+            raise InputError(
+                f"prediction of shape {pred.shape} does not fit the simulated proxy {sim.shape}",
+                pred_file,
+            )
         out[name] = {"sim": sim, "pred": pred}
         if net is not None:
             joints, root_rot = joint2coarse_inputs(load_project_motion(project, name))
@@ -224,6 +222,7 @@ def run(args: argparse.Namespace) -> int:
     from core.fileio import write_json
     from core.project import Project
     from training.baselines import load_for_evaluation
+    from training.joint2coarse import vertex_errors
     from training.pipeline import project_config
 
     root = Path(args.project)
@@ -247,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     proxies = _proxies(project, motions, autoencoder)
     models = {name: load_for_evaluation(path) for name, path in paths.items()}
-    j2c_mm = {m: mean_error_mm(p["pred"], p["sim"]) for m, p in proxies.items()}
+    j2c_mm = {m: vertex_errors(p["pred"], p["sim"]).mean_mm for m, p in proxies.items()}
     frames = {m: len(p["sim"]) for m, p in proxies.items()}
     load_before = os.getloadavg()
     rows: list[dict] = []
@@ -287,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
             positions = {m: p["autoencoder"] for m, p in proxies.items()}
         else:
             positions = {m: blend_positions(p["sim"], p["pred"], s) for m, p in proxies.items()}
-        errors = {m: mean_error_mm(positions[m], proxies[m]["sim"]) for m in motions}
+        errors = {m: vertex_errors(positions[m], proxies[m]["sim"]).mean_mm for m in motions}
         scored = score(project, models, motions, positions)
         summaries = scored["methods"]
         mse = {name: summary["mse"]["mean"] for name, summary in summaries.items()}

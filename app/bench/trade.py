@@ -238,6 +238,7 @@ def default_widths(cfg) -> list[tuple[int, int]]:
 def check_project(root: Path, motion: str | None) -> tuple[object, str]:
     """The project's pipeline settings and the test motion to use; InputError naming what is
     missing (the folder, its data set, test set or Joint2Coarse)."""
+    from app.bench import project_test_sets
     from core.errors import InputError
     from core.project import Project
     from training.pipeline import project_config
@@ -251,15 +252,12 @@ def check_project(root: Path, motion: str | None) -> tuple[object, str]:
     ):
         if not (root / rel).is_file():
             raise InputError(what, root / rel)
-    tests = sorted(p.parent.name for p in (root / "testset").glob("*/samples.json"))
-    if not tests:
-        raise InputError("no test set: run dng demo (the testset stage) first", root / "testset")
-    order = [m.name for m in config.test_motions if m.name in tests] + tests
+    order = project_test_sets(root, config)
     if motion is None:
         motion = order[0]
-    elif motion not in tests:
+    elif motion not in order:
         raise InputError(
-            f"no test set for motion {motion!r}; have {', '.join(tests)}", root / "testset"
+            f"no test set for motion {motion!r}; have {', '.join(sorted(order))}", root / "testset"
         )
     if not (root / "joint2coarse" / f"pred-{motion}.npz").is_file():
         raise InputError(
