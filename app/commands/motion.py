@@ -96,6 +96,10 @@ def format_info(info: dict) -> str:
             f"{k} ({v * 100:.2f} cm)" for k, v in info["varying_translations_m"].items()
         )
         lines.append(f"note: varying joint translations replaced by their mean: {moved}")
+    if info.get("wrapper_joints"):
+        lines.append(
+            f"note: wrapper joints above the root folded into it: {', '.join(info['wrapper_joints'])}"
+        )
     lines.append("source joints:   " + ", ".join(info["source_joints"]))
     return "\n".join(lines)
 

@@ -15,6 +15,12 @@ Conventions handled here:
   constant channel becomes the offset and a varying one is replaced by its mean over the clip; the
   affected joints and the largest deviation from the mean (file units) are recorded in
   ``meta["varying_translations"]`` so nobody mistakes the result for exact.
+- A wrapper above the skeleton (glTF's ``GLTF_created_0_rootJoint``, Blender's ``Armature``, FBX's
+  ``RootNode``, Biped's ``Bip001``): when the root and the joints below it have one child each and
+  one of them carries varying position channels (the hips, typically), the joints above it are
+  folded into it, their static or animated transform composed with its own, so that it becomes the
+  root and keeps its exact path. Only joints that no convention names as a body joint are folded
+  (:func:`core.motion.mapping.is_body_joint`); their names go to ``meta["wrapper_joints"]``.
 - Keywords are case-insensitive; CRLF line ends, tabs, blank lines and a UTF-8 BOM are fine; joint
   names may contain spaces (``Bip001 L Thigh``).
 """
@@ -30,6 +36,7 @@ import numpy as np
 
 from core.errors import InputError
 from core.fileio import atomic_open
+from core.motion.mapping import is_body_joint
 from core.motion.motion import Motion
 from core.skeleton import Skeleton
 
@@ -392,58 +399,96 @@ def matrix_to_euler(rotations: np.ndarray, order: str) -> np.ndarray:
 def clip_to_motion(clip: BvhClip, name: str = "", path: str | None = None) -> Motion:
     """The clip as a :class:`Motion` in file units and axes (no normalisation, no mapping).
 
-    ``meta`` gets ``source_joints``, ``channels`` (per joint, as written) and, where non-root
-    position channels vary, ``varying_translations`` ({joint: largest deviation in file units}).
+    A wrapper above the skeleton is folded into the joint below it that moves (see the module
+    docstring); every other joint keeps its place. ``meta`` gets ``source_joints`` (the joints
+    kept), ``channels`` (per joint, as written), ``wrapper_joints`` (folded, possibly empty) and,
+    where non-root position channels vary, ``varying_translations`` ({joint: largest deviation
+    in file units}).
     """
     j = len(clip.names)
     t = clip.num_frames
-    offsets = clip.offsets.copy()
     rotations = np.empty((t, j, 3, 3), np.float64)
-    root = np.broadcast_to(offsets[0], (t, 3)).copy()
-    size = max(float(np.abs(clip.offsets).sum()), 1e-9)
-    varying: dict[str, float] = {}
+    translations = np.broadcast_to(clip.offsets, (t, j, 3)).copy()  # local, per frame
+    has_position = np.zeros((j, 3), bool)
     for k, (chans, cols) in enumerate(zip(clip.channels, clip.channel_slices())):
         vals = clip.values[:, cols]
         rot_cols = [c for c, ch in enumerate(chans) if ch.endswith("rotation")]
         order = "".join(chans[c][0] for c in rot_cols)
         rotations[:, k] = euler_to_matrix(vals[:, rot_cols], order)
         for c, ch in enumerate(chans):
-            if not ch.endswith("position"):
-                continue
-            axis = "XYZ".index(ch[0])
-            if k == 0:
-                root[:, axis] = vals[:, c]
-                continue
-            column = vals[:, c]
-            mean = float(column.mean())
-            dev = float(np.abs(column - mean).max())
-            offsets[k, axis] = mean
-            if dev > _CONSTANT_TRANSLATION_REL * size:
-                varying[clip.names[k]] = max(varying.get(clip.names[k], 0.0), dev)
-    if any(ch.endswith("position") for ch in clip.channels[0]):
-        offsets[0] = root[0]
+            if ch.endswith("position"):
+                axis = "XYZ".index(ch[0])
+                translations[:, k, axis] = vals[:, c]
+                has_position[k, axis] = True
+    size = max(float(np.abs(clip.offsets).sum()), 1e-9)
+    mean = translations.mean(axis=0)
+    deviation = np.abs(translations - mean).max(axis=(0, 2))
+    varying = deviation > _CONSTANT_TRANSLATION_REL * size
+    offsets = clip.offsets.copy()
+    offsets[has_position] = mean[has_position]  # a constant channel is the offset, else its mean
+    end_sites = clip.end_sites.copy()
+    root_index = len(_wrapper_chain(clip, varying))
+    if root_index:
+        # The wrappers' world transform (w_pos, w_rot) moves the new root; the skeleton below is
+        # expressed in the wrappers' first-frame axes c, so the rest pose is the file's world
+        # (a Y-up to Z-up wrapper gives a Z-up rest pose): offsets c @ o, rotations c R c^T, and
+        # the root's rotation w_rot R c^T. Forward kinematics then gives the file's world exactly.
+        w_pos, w_rot = translations[:, 0], rotations[:, 0]
+        for k in range(1, root_index):
+            w_pos = w_pos + np.einsum("tab,tb->ta", w_rot, translations[:, k])
+            w_rot = w_rot @ rotations[:, k]
+        c = w_rot[0]
+        translations[:, root_index] = w_pos + np.einsum(
+            "tab,tb->ta", w_rot, translations[:, root_index]
+        )
+        rotations[:, root_index] = w_rot @ rotations[:, root_index] @ c.T
+        rotations[:, root_index + 1 :] = c @ rotations[:, root_index + 1 :] @ c.T
+        offsets, end_sites = offsets @ c.T, end_sites @ c.T
+    keep = np.arange(root_index, j)
+    root = translations[:, root_index].copy()
+    offsets[root_index] = root[0]
+    names = clip.names[root_index:]
     skeleton = Skeleton(
-        names=clip.names,
-        parents=clip.parents.copy(),
-        offsets=offsets.astype(np.float32),
-        end_sites=clip.end_sites.astype(np.float32),
+        names=names,
+        parents=np.where(clip.parents[keep] >= root_index, clip.parents[keep] - root_index, -1),
+        offsets=offsets[keep].astype(np.float32),
+        end_sites=end_sites[keep].astype(np.float32),
     )
     meta: dict = {
-        "source_joints": list(clip.names),
-        "channels": {n: list(c) for n, c in zip(clip.names, clip.channels)},
+        "source_joints": list(names),
+        "channels": {n: list(c) for n, c in zip(names, clip.channels[root_index:])},
+        "wrapper_joints": list(clip.names[:root_index]),
     }
-    if varying:
-        meta["varying_translations"] = varying
+    moved = {clip.names[k]: float(deviation[k]) for k in keep[1:] if varying[k]}
+    if moved:
+        meta["varying_translations"] = moved
     if path is not None:
         meta["path"] = str(path)
     return Motion(
         skeleton=skeleton,
-        rotations=rotations.astype(np.float32),
+        rotations=rotations[:, keep].astype(np.float32),
         root_positions=root.astype(np.float32),
         fps=clip.fps,
         name=name,
         meta=meta,
     )
+
+
+def _wrapper_chain(clip: BvhClip, varying: np.ndarray) -> tuple[str, ...]:
+    """The wrapper joints to fold (see the module docstring): the root and the joints below it,
+    each with one child, down to the deepest joint on that chain with a varying translation
+    (``varying`` (J,) bool), when none of them is a body joint; else ``()``. In file order, so
+    the joints kept are ``clip.names[len(result):]``."""
+    children = np.bincount(clip.parents[1:], minlength=len(clip.names))
+    chain = [0]
+    while children[chain[-1]] == 1:
+        # File order lists a joint's subtree right after it: the one child is the next joint.
+        chain.append(chain[-1] + 1)
+    moving = [k for k in chain[1:] if varying[k]]
+    if not moving:
+        return ()
+    above = clip.names[: moving[-1]]
+    return () if any(is_body_joint(n) for n in above) else above
 
 
 # ----------------------------------------------------------------------------------- writing

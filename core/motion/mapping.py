@@ -17,6 +17,13 @@ alone cannot:
   chest) is moved a quarter of the way towards its canonical child, so no canonical bone has zero
   length. A missing clavicle is placed a quarter of the way from Spine2 to the upper arm.
 
+Names are matched without the decorations that converters (glTF, FBX, Blender) add, see
+:func:`clean_names`: paths and namespaces (``Armature|Hips``, ``rig:char:Spine``,
+``mixamorig1:LeftArm``) and numeric exporter suffixes (``Bip001 L Clavicle_197``,
+``LeftArm.001``, ``mixamorig:Hips_01``). A wrapper joint above the hips (``Armature``,
+``GLTF_created_0_rootJoint``) simply maps to nothing; :func:`core.motion.bvh.clip_to_motion`
+folds it into the hips when the hips carries the translation.
+
 Where names do not suffice, a user mapping file ``{canonical_name: source_name}`` overrides any
 entry. What cannot be found raises :class:`InputError` naming the canonical joints.
 """
@@ -77,6 +84,14 @@ _CANONICAL_OF_ROLE = {
     "clavicle": "Shoulder", "upperarm": "Arm", "forearm": "ForeArm", "hand": "Hand",
     "thigh": "UpLeg", "shin": "Leg", "foot": "Foot",
 }  # fmt: skip
+#: Name cores (as :func:`split_name` gives them) of joints a convention names: a numeric
+#: exporter suffix is stripped only when that leaves one of these (or when every joint has it).
+_VOCABULARY: tuple[str, ...] = (
+    *dict.fromkeys(p for ps in _ROLE_PATTERNS.values() for p in ps),
+    r"spine\d*", r"neck\d*", "chest", "upperchest", "lowerback", "abdomen", "ab", "torso",
+)  # fmt: skip
+_PATH_SEPARATORS = re.compile(r"[|/:]")
+_NUMERIC_SUFFIX = re.compile(r"(.+?)[._](\d+)")
 _PREFIX = re.compile(r"^(?:(?:DEF|ORG|MCH)[-_.]|Bip\d+\s*|Character\d*_|Biped\d*_)", re.IGNORECASE)
 _TOKEN = re.compile(r"[A-Z]+(?=[A-Z][a-z])|[A-Z]?[a-z]+|[A-Z]+|\d+")
 #: How far (fraction) a joint on top of its parent moves towards its child; clavicle placement.
@@ -154,6 +169,57 @@ def split_name(name: str) -> tuple[str | None, str]:
     return side, "".join(core)
 
 
+def clean_names(names: tuple[str, ...]) -> tuple[str, ...]:
+    """The joint names without exporter decorations, for matching only (one per name).
+
+    - Paths and namespaces: the last part after ``|``, ``/`` or ``:`` (``Armature|Hips``,
+      ``Armature/Hips``, ``rig:char:Spine``, ``mixamorig9:Hips`` -> ``Hips``).
+    - A numeric suffix ``_<digits>`` or ``.<digits>`` (``Bip001 L Clavicle_197``,
+      ``LeftArm.001``, ``Hips_01``), only when every joint carries the same suffix, or when
+      the name without it is one a convention uses for a body joint (``hand``, ``clavicle``,
+      ``spine2``, ``spine.003``...: :data:`_VOCABULARY`). Digits that are part of the name stay
+      (``Spine1``, ``Neck1``, ``LeftHandIndex1`` have no separator; ``f_index.01.L`` does not
+      end in digits).
+    - A suffix is kept wherever stripping it would make two joints read the same (side and core,
+      see :func:`split_name`): Rigify's ``DEF-spine.001``... beside ``DEF-spine``, Unreal's
+      ``spine_01``/``spine_02``, Blender's duplicate ``LeftArm.001`` beside ``LeftArm``.
+
+    Parameters
+    ----------
+    names : the skeleton's J joint names, as written
+
+    Returns
+    -------
+    tuple of J str
+    """
+    bases = []
+    for name in names:
+        parts = [p.strip() for p in _PATH_SEPARATORS.split(name) if p.strip()]
+        bases.append(parts[-1] if parts else name)
+    found = [_NUMERIC_SUFFIX.fullmatch(b) for b in bases]
+    suffixes = {m.group(2) for m in found if m}
+    common = len(names) >= 2 and all(found) and len(suffixes) == 1
+    strip = {
+        k
+        for k, m in enumerate(found)
+        if m and (common or _rank(split_name(m.group(1))[1], _VOCABULARY) is not None)
+    }
+    while True:  # drop the strips that would make two joints read the same
+        cleaned = [found[k].group(1) if k in strip else b for k, b in enumerate(bases)]
+        keys = [split_name(c) for c in cleaned]
+        clash = {k for k in strip if keys.count(keys[k]) > 1}
+        if not clash:
+            return tuple(cleaned)
+        strip -= clash
+
+
+def is_body_joint(name: str) -> bool:
+    """Whether ``name`` (decorations removed, see :func:`clean_names`) is one some convention uses
+    for a body joint (``Hips``, ``Bip001 Pelvis``, ``mixamorig:Spine1``...), unlike a wrapper
+    above the skeleton (``Armature``, ``RootNode``, ``GLTF_created_0_rootJoint``, ``Bip001``)."""
+    return _rank(split_name(clean_names((name,))[0])[1], _VOCABULARY) is not None
+
+
 def _rank(core: str, patterns: tuple[str, ...]) -> int | None:
     for r, p in enumerate(patterns):
         if re.fullmatch(p, core):
@@ -161,11 +227,15 @@ def _rank(core: str, patterns: tuple[str, ...]) -> int | None:
     return None
 
 
-def detect_rig(names: tuple[str, ...]) -> str:
-    """A label for the naming convention, for reports only."""
-    joined = " ".join(names)
-    if "mixamorig" in joined.lower():
+def detect_rig(names: tuple[str, ...], clean: tuple[str, ...] | None = None) -> str:
+    """A label for the naming convention, for reports only.
+
+    ``clean`` : the names as :func:`clean_names` gives them (computed when not given).
+    """
+    if "mixamorig" in " ".join(names).lower():
         return "mixamo"
+    names = clean_names(names) if clean is None else clean
+    joined = " ".join(names)
     if re.search(r"(^|\s)Bip\d+", joined):
         return "biped"
     if any(n.startswith("DEF-") for n in names):
@@ -249,7 +319,8 @@ def map_skeleton(
     depth = np.zeros(len(names), np.int64)
     for k in range(1, len(names)):
         depth[k] = depth[parents[k]] + 1
-    info = [split_name(n) for n in names]
+    clean = clean_names(names)
+    info = [split_name(n) for n in clean]
 
     def ancestors(k: int) -> list[int]:
         out = []
@@ -383,10 +454,10 @@ def map_skeleton(
 
     missing = [c for c in MAPPED_JOINTS if c not in found]
     if missing:
-        rig = detect_rig(names)
         raise InputError(
-            f"could not map the skeleton onto the canonical joints: {', '.join(missing)} not "
-            f"found (naming convention: {rig}); give a mapping file {{canonical_name: source_name}}",
+            f"could not map the skeleton onto the canonical joints: {len(missing)} of "
+            f"{len(CANONICAL_JOINTS)} not found: {', '.join(missing)} (naming convention: "
+            f"{detect_rig(names, clean)}); give a mapping file {{canonical_name: source_name}}",
             path,
         )
 
@@ -401,7 +472,7 @@ def map_skeleton(
         if np.linalg.norm(position(found[c]) - parent_pos) <= eps:
             found[c] = _lerp(found[c], found[_CANONICAL_CHILD[c]], _NUDGE)
 
-    rig = detect_rig(names) + ("+user" if user else "")
+    rig = detect_rig(names, clean) + ("+user" if user else "")
     return JointMapping(sources=tuple(found[c] for c in MAPPED_JOINTS), rig=rig)
 
 
