@@ -1,4 +1,8 @@
-"""Loading a BVH file as a normalised :class:`Motion`: metres, Y up, mapped, optionally resampled.
+"""Loading a BVH or glTF file as a normalised :class:`Motion`: metres, Y up, mapped, resampled.
+
+A ``.gltf``/``.glb`` file's skeleton animation (:mod:`core.motion.gltf`) is metres and Y up by
+the glTF specification: no unit or up-axis detection, unless ``scale``/``up_axis`` say otherwise.
+The rest of this docstring is about BVH files, which carry neither.
 
 Units and up axis come from the rest skeleton (the first frame when the rest pose is not
 upright): the up axis is the one the head sits above the feet along (``y`` or ``z``), and the
@@ -19,6 +23,7 @@ import numpy as np
 from core.constants import CM_M, CMU_UNIT_M, INCH_M
 from core.errors import InputError
 from core.motion.bvh import clip_to_motion, read_bvh
+from core.motion.gltf import GLTF_SUFFIXES, gltf_to_motion
 from core.motion.mapping import JointMapping, map_skeleton, read_mapping_file
 from core.motion.motion import Motion
 from core.skeleton import Skeleton, forward_kinematics
@@ -44,11 +49,11 @@ def load_motion(
     mapping: str | os.PathLike | dict[str, str] | None = None,
     up_axis: str | None = None,
 ) -> Motion:
-    """Read a BVH file as a Motion in metres, Y up, right-handed.
+    """Read a BVH or a skinned glTF/GLB file as a Motion in metres, Y up, right-handed.
 
     Parameters
     ----------
-    path : the BVH file
+    path : the BVH file, or a ``.gltf``/``.glb`` with a skin and an animation
     fps : resample to this frame rate (same duration), optional
     scale : metres per file unit, overriding the detected unit
     mapping : a mapping file path or ``{canonical: source}`` dict for rigs the matcher misses
@@ -81,17 +86,23 @@ def load_motion(
         mapping_path = os.fspath(mapping)
         user = read_mapping_file(mapping_path)
 
-    raw = clip_to_motion(read_bvh(path), name=Path(path).stem, path=path)
+    is_gltf = Path(path).suffix.lower() in GLTF_SUFFIXES
+    if is_gltf:  # sampled at fps directly: no second resampling below
+        raw = gltf_to_motion(path, fps=fps)
+    else:
+        raw = clip_to_motion(read_bvh(path), name=Path(path).stem, path=path)
     joint_mapping = map_skeleton(raw.skeleton, user, path=path, mapping_path=mapping_path)
-    detected_up = detect_up_axis(raw, joint_mapping)
+    detected_up = "y" if is_gltf else detect_up_axis(raw, joint_mapping)
     up = up_axis or detected_up
     motion = z_up_to_y_up(raw) if up == "z" else raw
     height_units = standing_height(motion, joint_mapping)
-    if not height_units > 0:
+    if not height_units > 0 and not is_gltf:
         raise InputError("cannot measure the standing height: head is not above the feet", path)
     if scale is not None:
         unit = next((n for n, s in KNOWN_UNITS.items() if math.isclose(s, scale)), "user")
         unit_scale = float(scale)
+    elif is_gltf:
+        unit, unit_scale = "m", 1.0
     else:
         unit, unit_scale = detect_unit(height_units)
     motion = scale_motion(motion, unit_scale)
@@ -109,7 +120,7 @@ def load_motion(
         mapping=joint_mapping.as_dict(),
         joint_mapping=joint_mapping,
         standing_height_m=float(height_units * unit_scale),
-        source_fps=raw.fps,
+        source_fps=(raw.meta.get("keyframe_fps") or raw.fps) if is_gltf else raw.fps,
     )
     motion = Motion(
         skeleton=motion.skeleton,
