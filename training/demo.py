@@ -461,14 +461,16 @@ def report_markdown(report: dict) -> str:
     lines += [
         "",
         "| unseen motion | penetration mean / max (mm) | penetrating vertices | with push-out | "
-        "batch inference (ms/frame) | streaming (ms/frame, median / p95) |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "simulation | batch inference (ms/frame) | streaming (ms/frame, median / p95) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, m in j["motions"].items():
         p, q = m["penetration_mm"], m["with_push_out"]["penetration_mm"]
+        s = m.get("simulation_penetration_mm")
+        sim = f"{s['mean']:.2f} / {s['max']:.1f} ({s['fraction']:.1%})" if s else "-"
         lines.append(
             f"| `{name}` | {p['mean']:.2f} / {p['max']:.1f} | {p['fraction']:.1%} | "
-            f"{q['mean']:.2f} / {q['max']:.1f} ({q['fraction']:.1%}) | "
+            f"{q['mean']:.2f} / {q['max']:.1f} ({q['fraction']:.1%}) | {sim} | "
             f"{m['batch_ms_per_frame']:.3f} | {_stream_ms(m)} |"
         )
     lines += ["", "Side by side (simulation above, prediction below):", ""]

@@ -54,6 +54,12 @@ class MotionSpec:
     """The BVH file when ``kind == "file"`` (any rig; it is retargeted onto the mannequin)."""
     start_s: float = 0.0
     """Seconds to skip at the start of a file (motion capture often starts in a T-pose)."""
+    speed: float = 1.0
+    """Played this many times faster (``core.motion.variation.vary_motion``) ..."""
+    amplitude: float = 1.0
+    """... with its joint rotation angles scaled by this ..."""
+    heading_deg: float = 0.0
+    """... and turned by this many degrees about the vertical: a training-library variation."""
 
 
 @dataclass(frozen=True)
@@ -288,18 +294,29 @@ def _make_motion(spec: MotionSpec, config: PipelineConfig):
     from core.motion.mapping import canonical_positions
     from core.motion.procedural import make_motion
     from core.motion.retarget import retarget
+    from core.motion.variation import source_frames, vary_motion
 
+    frames = source_frames(spec.frames, spec.speed)  # before playing it faster or slower
     if spec.kind != "file":
-        return make_motion(spec.kind, spec.frames, config.fps, spec.seed, config.body)
-    source = resample(load_motion(spec.path), config.fps)
-    first = int(round(spec.start_s * config.fps))
-    if first + spec.frames > source.num_frames:
-        raise InputError(
-            f"{spec.frames} frames from {spec.start_s} s wanted, the clip has {source.num_frames}",
-            spec.path,
-        )
-    positions = canonical_positions(source)[first : first + spec.frames]
-    return retarget(positions, config.fps, config.body, name=spec.name)
+        motion = make_motion(spec.kind, frames, config.fps, spec.seed, config.body)
+    else:
+        source = resample(load_motion(spec.path), config.fps)
+        first = int(round(spec.start_s * config.fps))
+        if first + frames > source.num_frames:
+            raise InputError(
+                f"{frames} frames from {spec.start_s} s wanted, the clip has {source.num_frames}",
+                spec.path,
+            )
+        positions = canonical_positions(source)[first : first + frames]
+        motion = retarget(positions, config.fps, config.body, name=spec.name)
+    if (spec.speed, spec.amplitude, spec.heading_deg) == (1.0, 1.0, 0.0):
+        return motion
+    varied = vary_motion(motion, spec.speed, spec.amplitude, spec.heading_deg)
+    return replace(
+        varied,
+        rotations=varied.rotations[: spec.frames],
+        root_positions=varied.root_positions[: spec.frames],
+    )
 
 
 def load_project_motion(project: Project, name: str):
@@ -387,7 +404,7 @@ def stage_simulate(
     returns the cache's path.
     """
     from core.mesh import load_mesh
-    from core.sim import SimConfig, save_cache
+    from core.sim import save_cache
     from core.sim.simulate import simulate
 
     if which not in ("proxy", "target"):
@@ -402,7 +419,7 @@ def stage_simulate(
         else project.path("garment", "target.obj")
     )
     motion_file = project.path("motions", f"{motion_name}.bvh")
-    sim_cfg = SimConfig(fabric=config.fabric, substeps=config.sim_substeps)
+    sim_cfg = sim_config(config)
     params = {"sim": asdict(sim_cfg), "body": asdict(config.body), "which": which}
     stage = f"sim/{motion_name}-{which}"
 
@@ -422,6 +439,14 @@ def stage_simulate(
 
     project.run_stage(stage, params, [garment, motion_file], work)
     return project.path(stage, "cache.npz")
+
+
+def sim_config(config: PipelineConfig):
+    """The simulation settings of a project (fabric, substeps): every proxy simulation of the
+    project, and ``dng eval joint2coarse``'s, runs with these."""
+    from core.sim import SimConfig
+
+    return SimConfig(fabric=config.fabric, substeps=config.sim_substeps)
 
 
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
@@ -587,11 +612,11 @@ def stage_joint2coarse(
 
 
 def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> dict:
-    """Predict a test motion; compare with its simulation, with and without the optional
-    push-out against the body; time the inference; write a side-by-side picture."""
-    from core.body.colliders import posed_capsules_for
+    """Predict a test motion; compare with its simulation, with and without the push-out
+    against the body (the capsules the simulation collides with); time the inference; write a
+    side-by-side picture. Penetration is reported for the prediction and the simulation alike."""
     from core.body.mannequin import make_body
-    from core.sim.simulate import penetration_depths
+    from core.mesh import load_mesh
     from training.joint2coarse import (
         Joint2CoarseStream,
         joint2coarse_inputs,
@@ -599,6 +624,7 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
         reconstruct_proxy,
         vertex_errors,
     )
+    from training.joint2coarse.collision import penetration_summary, simulation_colliders
 
     motion = load_project_motion(project, name)
     joints, root_rot = joint2coarse_inputs(motion)
@@ -612,18 +638,21 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
         stream.push(joints[t], root_rot[t])
         frame_ms.append(1e3 * (time.perf_counter() - start))
     body = make_body(config.body)
-    capsules = posed_capsules_for(body, motion)
-    pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=body.capsules.radii)
+    top = float(load_mesh(project.path("proxy", "positions.obj"))[0].vertices[:, 1].max())
+    capsules, radii = simulation_colliders(
+        config.body, motion, top, sim_config(config).arm_colliders
+    )
+    pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
     write_npz(out / f"pred-{name}.npz", positions=pred)
 
     def measured(positions: np.ndarray) -> dict:
-        depth = penetration_depths(positions, capsules, body.capsules.radii)
+        pen = penetration_summary(positions, capsules, radii)
         return {
             "error_mm": asdict(vertex_errors(positions, reference.positions)),
             "penetration_mm": {
-                "mean": float(depth.mean() * 1e3),
-                "max": float(depth.max() * 1e3),
-                "fraction": float((depth > 0).mean()),
+                "mean": pen["mean_mm"],
+                "max": pen["max_mm"],
+                "fraction": pen["inside_percent"] / 100.0,
             },
         }
 
@@ -633,6 +662,7 @@ def _evaluate_joint2coarse(project, config, net, name, reference, out: Path) -> 
         "frames": int(len(pred)),
         **measured(pred),
         "with_push_out": measured(pushed),
+        "simulation_penetration_mm": measured(reference.positions)["penetration_mm"],
         # What the decoder reaches from the shapes themselves, encoded (no motion involved).
         "autoencoder_error_mm": asdict(vertex_errors(rebuilt, reference.positions)),
         "batch_ms_per_frame": ms,

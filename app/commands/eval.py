@@ -1,4 +1,7 @@
-"""``dng eval PROJECT [--json]``: score the renderer and the baselines on unseen motions."""
+"""``dng eval PROJECT [--json]``: score the renderer and the baselines on unseen motions.
+
+``dng eval joint2coarse PROJECT --motion FILE.bvh|KIND [--frames N] [--start-s S] [--json]``:
+Joint2Coarse against the simulation on any motion."""
 
 from __future__ import annotations
 
@@ -19,7 +22,23 @@ def register(sub: argparse._SubParsersAction) -> None:
             "(dng train renderer|baselines PROJECT)."
         ),
     )
-    p.add_argument("project", help="project folder (made by dng demo)")
+    p.add_argument(
+        "project",
+        help="project folder (made by dng demo); or the word joint2coarse, then the project: "
+        "Joint2Coarse against the simulation on --motion",
+    )
+    p.add_argument("j2c_project", nargs="?", metavar="PROJECT", help=argparse.SUPPRESS)
+    j = p.add_argument_group(
+        "dng eval joint2coarse PROJECT",
+        "retarget a motion onto the project's body, simulate the proxy with the project's "
+        "fabric, substeps and fps (cached outside the project, in $XDG_CACHE_HOME/garment-studio "
+        "or ~/.cache/garment-studio), run Joint2Coarse on it and report vertex error (mean, "
+        "p95, max, mm), body penetration and ms per frame of both",
+    )
+    j.add_argument("--motion", metavar="FILE.bvh|KIND", help="a BVH file or a procedural kind")
+    j.add_argument("--frames", type=int, help="frames to keep (default: all; 150 of a kind)")
+    j.add_argument("--start-s", type=float, default=0.0, help="seconds of the file to skip")
+    j.add_argument("--seed", type=int, default=0, help="seed of a procedural kind")
     p.add_argument(
         "--inception",
         metavar="WEIGHTS.pth",
@@ -38,6 +57,38 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.project == "joint2coarse" and args.j2c_project is not None:
+        return run_joint2coarse(args)
+    from core.errors import InputError
+
+    if args.j2c_project is not None or args.motion is not None:
+        raise InputError(
+            "--motion and a second folder go with dng eval joint2coarse PROJECT --motion M"
+        )
+    return run_renderers(args)
+
+
+def run_joint2coarse(args: argparse.Namespace) -> int:
+    import json
+    import sys
+
+    from core.errors import InputError
+    from core.project import Project
+    from training.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
+    from training.pipeline import project_config
+
+    if args.motion is None:
+        raise InputError("dng eval joint2coarse needs --motion FILE.bvh or a procedural kind")
+    project = Project(args.j2c_project)
+    config = project_config(project)
+    log = (lambda message: print(message, file=sys.stderr, flush=True)) if args.json else print
+    motion = eval_motion(config, args.motion, args.frames, args.start_s, args.seed)
+    report = evaluate_on_motion(project, config, motion, args.motion, log)
+    print(json.dumps(report, indent=1) if args.json else format_report(report))
+    return 0
+
+
+def run_renderers(args: argparse.Namespace) -> int:
     import json
     import sys
     from dataclasses import replace

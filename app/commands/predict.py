@@ -21,7 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     x.add_argument("project", help="project folder with a trained joint2coarse/")
     x.add_argument("--motion", required=True, help="BVH file")
     x.add_argument("--out", required=True, help="cache to write (.npz, .pc2, .mdd or a folder)")
-    x.add_argument("--push-out", action="store_true", help="push vertices out of the body")
+    x.add_argument(
+        "--push-out",
+        action="store_true",
+        help="push vertices out of the body (the capsules the simulation collides with)",
+    )
     x.set_defaults(handler=run_proxy)
 
 
@@ -47,17 +51,19 @@ def run_proxy(args: argparse.Namespace) -> int:
     source = resample(load_motion(args.motion), config.fps)
     motion = retarget(canonical_positions(source), config.fps, config.body, name=args.motion)
     joints, root_rot = joint2coarse_inputs(motion)
+    proxy = load_mesh(project.path("proxy", "positions.obj"))[0]
     capsules = radii = None
-    if args.push_out:
-        from core.body.colliders import posed_capsules_for
-        from core.body.mannequin import make_body
+    if args.push_out:  # the capsules the project's simulation collides with
+        from training.joint2coarse.collision import simulation_colliders
+        from training.pipeline import sim_config
 
-        body = make_body(config.body)
-        capsules, radii = posed_capsules_for(body, motion), body.capsules.radii
+        top = float(proxy.vertices[:, 1].max())
+        arms = sim_config(config).arm_colliders
+        capsules, radii = simulation_colliders(config.body, motion, top, arms)
     start = time.perf_counter()
     positions = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
     ms = 1e3 * (time.perf_counter() - start) / len(positions)
-    faces = load_mesh(project.path("proxy", "positions.obj"))[0].faces
+    faces = proxy.faces
     params = {"joint2coarse": str(model), "motion": args.motion, "push_out": args.push_out}
     export_cache(args.out, SimCache(positions, faces, config.fps, params))
     print(f"{len(positions)} frames x {positions.shape[1]} vertices, {ms:.2f} ms/frame: {args.out}")

@@ -1,8 +1,15 @@
-"""Optional collision push-out of predicted proxy vertices against body capsules."""
+"""Collision push-out of predicted proxy vertices against body capsules, and the capsules the
+cloth simulation collides with (so a prediction is pushed out of, and measured against, the
+same body the simulation saw)."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.sim.colliders import body_capsules, is_arm, pose_capsules, select_capsules
+from core.sim.simulate import CHEST_LEVEL, mannequin_motion_arrays, penetration_depths
+from core.skeleton import forward_kinematics, skinning_transforms
 
 #: Default distance (metres) kept between a pushed vertex and the capsule surface.
 DEFAULT_MARGIN_M = 0.002
@@ -83,3 +90,62 @@ def push_out_of_capsules(
             v = np.where(inside[..., None], closest + target * direction, v)
     v = v.astype(np.float32)
     return v[0] if single else v
+
+
+def simulation_colliders(
+    shape: BodyShape,
+    motion,
+    garment_top: float,
+    arm_colliders: bool | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The capsules the cloth simulation collides with, posed for every frame of ``motion``.
+
+    The same capsules as :func:`core.sim.simulate.simulate` builds (:mod:`core.sim.colliders`),
+    with the same rule for the arms: they collide only when asked to (``arm_colliders``) or,
+    when that is None, when the garment reaches above the chest.
+
+    Parameters
+    ----------
+    shape : BodyShape
+    motion : core.motion.Motion on the mannequin's joints, T frames
+    garment_top : float
+        Highest rest-pose height (metres) of the garment (the proxy's rest positions).
+    arm_colliders : bool or None
+        :attr:`core.sim.SimConfig.arm_colliders`.
+
+    Returns
+    -------
+    ends : (T, K, 2, 3) float32
+        Posed capsule end points.
+    radii : (K,) float32
+    """
+    rotations, roots = mannequin_motion_arrays(motion, shape)
+    skeleton = mannequin_skeleton(shape)
+    capsules = body_capsules(skeleton, shape)
+    arms = arm_colliders if arm_colliders is not None else garment_top > CHEST_LEVEL * shape.height
+    if not arms:
+        capsules = select_capsules(capsules, [not is_arm(n) for n in capsules.names])
+    pos, rot = forward_kinematics(skeleton, rotations, roots)
+    return pose_capsules(capsules, skinning_transforms(skeleton, pos, rot)), capsules.radii
+
+
+def penetration_summary(positions: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> dict:
+    """How far vertices sit inside the body capsules.
+
+    Parameters
+    ----------
+    positions : (T, V, 3) float
+    ends : (T, K, 2, 3) float, radii : (K,) float
+        :func:`simulation_colliders`.
+
+    Returns
+    -------
+    dict: ``inside_percent`` (vertex-frames inside, %), ``mean_mm`` (mean depth over all
+    vertex-frames, 0 outside), ``max_mm`` (deepest).
+    """
+    depth = penetration_depths(np.asarray(positions), ends, radii)
+    return {
+        "inside_percent": float(100.0 * (depth > 0).mean()),
+        "mean_mm": float(depth.mean() * 1e3),
+        "max_mm": float(depth.max() * 1e3),
+    }

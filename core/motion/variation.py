@@ -1,0 +1,69 @@
+"""Variations of a clip for training data: played faster or slower, with larger or smaller joint
+rotations, turned to another heading.
+
+Pure functions of a :class:`~core.motion.motion.Motion`; the skeleton is unchanged, so a clip on
+the mannequin stays on the mannequin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from core.errors import InputError
+from core.motion.load import resample
+from core.motion.motion import Motion
+
+
+def source_frames(frames: int, speed: float) -> int:
+    """Frames of a clip that, played ``speed`` times faster, give ``frames`` frames."""
+    return int(math.ceil((frames - 1) * speed - 1e-9)) + 1
+
+
+def vary_motion(
+    motion: Motion, speed: float = 1.0, amplitude: float = 1.0, heading_deg: float = 0.0
+) -> Motion:
+    """The clip played ``speed`` times faster, its joint rotations scaled, turned about +Y.
+
+    Parameters
+    ----------
+    motion : Motion, T frames at ``fps``
+    speed : float > 0
+        Time scale: the result covers ``speed`` times the clip's time per second, at the same
+        fps (``(T - 1) / speed + 1`` frames, rounded; slerped in between).
+    amplitude : float >= 0
+        Every non-root joint's local rotation angle is multiplied by this (about its own axis):
+        1 keeps the clip, below 1 calms it towards the rest pose, above 1 exaggerates it. The
+        root's rotation and path are kept.
+    heading_deg : float
+        The whole clip (root rotation and root path) turned about the vertical axis through the
+        origin by this many degrees.
+
+    Returns
+    -------
+    Motion on the same skeleton, at the same fps.
+    """
+    for name, v, ok in (
+        ("speed", speed, speed > 0),
+        ("amplitude", amplitude, amplitude >= 0),
+        ("heading_deg", heading_deg, True),
+    ):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and ok):
+            raise InputError(f"motion variation {name}={v!r} is out of range", motion.name or None)
+    out = motion
+    if speed != 1.0:
+        out = resample(replace(out, fps=out.fps * speed), motion.fps)
+    rotations = np.array(out.rotations, np.float32)
+    roots = np.array(out.root_positions, np.float32)
+    if amplitude != 1.0:
+        t, j = rotations.shape[:2]
+        rv = Rotation.from_matrix(rotations[:, 1:].reshape(-1, 3, 3)).as_rotvec() * amplitude
+        rotations[:, 1:] = Rotation.from_rotvec(rv).as_matrix().reshape(t, j - 1, 3, 3)
+    if heading_deg != 0.0:
+        turn = Rotation.from_euler("y", heading_deg, degrees=True).as_matrix().astype(np.float32)
+        rotations[:, 0] = turn @ rotations[:, 0]
+        roots = roots @ turn.T
+    return replace(out, rotations=rotations, root_positions=roots)

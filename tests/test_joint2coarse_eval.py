@@ -1,0 +1,104 @@
+"""``dng eval joint2coarse``: Joint2Coarse against the simulation on any motion, and the
+simulation's own colliders for push-out and penetration."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.motion.procedural import make_motion
+from core.sim.colliders import body_capsules
+from core.sim.simulate import CHEST_LEVEL
+from training.joint2coarse import push_out_of_capsules
+from training.joint2coarse.collision import penetration_summary, simulation_colliders
+
+
+@pytest.fixture
+def scratch(tmp_path, monkeypatch):
+    """Evaluation simulations are cached here, not in the user's cache."""
+    cache = tmp_path / "xdg-cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    return cache
+
+
+def test_simulation_colliders_are_the_simulations_capsules():
+    shape = BodyShape()
+    motion = make_motion("walk", 12, 30.0, 0, shape)
+    low = CHEST_LEVEL * shape.height - 0.1
+    ends, radii = simulation_colliders(shape, motion, garment_top=low)
+    all_caps = body_capsules(mannequin_skeleton(shape), shape)
+    arms = sum("Arm" in n for n in all_caps.names)
+    assert ends.shape == (12, all_caps.count - arms, 2, 3) and radii.shape == (
+        all_caps.count - arms,
+    )
+    ends_arms, radii_arms = simulation_colliders(shape, motion, garment_top=low, arm_colliders=True)
+    assert ends_arms.shape[1] == all_caps.count
+    np.testing.assert_allclose(radii_arms, all_caps.radii)
+    # A point on a capsule's axis is inside it; pushed out, it is outside every capsule.
+    centre = ends[:, :1].mean(axis=2)  # (T, 1, 3): the middle of the first capsule's axis
+    pen = penetration_summary(centre, ends, radii)
+    assert pen["inside_percent"] == 100.0 and pen["max_mm"] >= 1e3 * radii[0] - 1e-3
+    pushed = push_out_of_capsules(centre, ends, radii)
+    assert penetration_summary(pushed, ends, radii)["inside_percent"] == 0.0
+
+
+def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
+    args = ("eval", "joint2coarse", smoke_project, "--motion", "walk", "--frames", 36)
+    code, out, err = dng(*args, "--json")
+    assert code == 0, err
+    report = json.loads(out)  # only JSON on stdout
+    assert report["frames"] == 36 and report["motion"] == "walk"
+    assert not report["simulation_from_cache"]
+    assert str(scratch) in report["simulation_cache"]
+    assert not any(smoke_project in p.parents for p in scratch.rglob("*"))
+    e = report["error_mm"]
+    assert 0 < e["mean_mm"] <= e["p95_mm"] <= e["max_mm"] < 1e3
+    pen = report["penetration"]
+    for key in ("prediction", "prediction_pushed_out", "simulation"):
+        assert 0.0 <= pen[key]["inside_percent"] <= 100.0 and pen[key]["max_mm"] >= 0.0
+    assert pen["prediction_pushed_out"]["inside_percent"] == 0.0
+    ms = report["ms_per_frame"]
+    assert ms["simulation"] > 0 and ms["prediction"] > 0 and ms["prediction_streaming"] > 0
+    # Again: the simulation comes from the scratch cache, and so do the same figures.
+    code, out, err = dng(*args, "--json")
+    again = json.loads(out)
+    assert code == 0 and again["simulation_from_cache"]
+    assert again["error_mm"] == report["error_mm"]
+    # The text form names every row.
+    code, out, _ = dng(*args)
+    assert code == 0
+    assert all(w in out for w in ("Joint2Coarse", "pushed out", "simulation", "mean mm"))
+
+
+def test_eval_joint2coarse_on_capture(smoke_project, scratch, dng, bvh_dir):
+    clip = bvh_dir / "01_01.bvh"
+    code, out, err = dng(
+        "eval", "joint2coarse", smoke_project, "--motion", clip,
+        "--start-s", 2.0, "--frames", 34, "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["frames"] == 34 and np.isfinite(report["error_mm"]["mean_mm"])
+
+
+def test_eval_joint2coarse_refuses_bad_input(smoke_project, scratch, dng, tmp_path):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n")
+    code, out, err = dng("eval", "joint2coarse", smoke_project, "--motion", bad)
+    assert code == 2 and str(bad) in err and len(err.strip().splitlines()) == 1
+    code, _, err = dng("eval", "joint2coarse", smoke_project, "--motion", "walk", "--frames", 10)
+    assert code == 2 and "window" in err and len(err.strip().splitlines()) == 1
+    code, _, err = dng("eval", "joint2coarse", smoke_project, "--motion", tmp_path / "none.bvh")
+    assert code == 2 and "none.bvh" in err
+    # A project with no trained Joint2Coarse (a copy without it: the shared one stays as it is).
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    shutil.copy(smoke_project / "project.json", bare / "project.json")
+    shutil.copytree(smoke_project / "proxy", bare / "proxy")
+    code, _, err = dng("eval", "joint2coarse", bare, "--motion", "walk", "--frames", 40)
+    assert code == 2 and "joint2coarse.pt" in err and len(err.strip().splitlines()) == 1
+    assert not scratch.exists()  # nothing simulated for refused input

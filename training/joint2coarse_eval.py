@@ -1,0 +1,264 @@
+"""``dng eval joint2coarse``: how close a project's Joint2Coarse comes to the simulation on any
+motion, the question every user has before trusting the preview.
+
+The motion (a BVH file on any rig, or a procedural kind) is retargeted onto the project's
+mannequin, the proxy is simulated under it with the project's fabric, substeps and fps (the
+simulation is cached in a scratch folder outside the project, keyed by a hash of everything
+that decides it), Joint2Coarse predicts the same frames, and the two are compared: vertex error
+(mean, 95th percentile, max, mm), body penetration of both against the capsules the simulation
+collides with, and milliseconds per frame of both.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputError
+from core.fileio import write_json
+from core.motion.motion import Motion
+from core.project import Project
+from training.pipeline import Log, MotionSpec, PipelineConfig, _make_motion, _quiet, sim_config
+
+#: Frames of a procedural kind when ``--frames`` is not given (5 s at 30 fps).
+DEFAULT_KIND_FRAMES = 150
+#: Bumped when the cached simulation's layout or meaning changes.
+CACHE_VERSION = 1
+
+
+def scratch_dir() -> Path:
+    """Where evaluation simulations are cached: ``$XDG_CACHE_HOME/garment-studio/
+    joint2coarse-eval`` (``~/.cache`` when unset), never inside a project."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "garment-studio" / "joint2coarse-eval"
+
+
+def eval_motion(
+    config: PipelineConfig,
+    motion: str,
+    frames: int | None = None,
+    start_s: float = 0.0,
+    seed: int = 0,
+) -> Motion:
+    """The motion to evaluate on, on the project's mannequin at the project's fps.
+
+    Parameters
+    ----------
+    config : the project's settings (body, fps)
+    motion : a BVH file (any rig: retargeted), or a procedural kind (``PROCEDURAL_KINDS``)
+    frames : frames to keep; default: the rest of the file after ``start_s``, or
+        :data:`DEFAULT_KIND_FRAMES` of a kind
+    start_s : seconds of the file to skip (motion capture often starts in a T-pose)
+    seed : seed of a procedural kind
+
+    Raises
+    ------
+    InputError
+        Unknown kind, bad or unreadable BVH, a start past the clip's end, ``frames`` < 1.
+    """
+    from core.motion.load import load_motion, resample
+    from core.motion.procedural import PROCEDURAL_KINDS
+
+    if frames is not None and frames < 1:
+        raise InputError(f"--frames must be at least 1, got {frames}", motion)
+    if not (np.isfinite(start_s) and start_s >= 0):
+        raise InputError(f"--start-s must be >= 0 seconds, got {start_s}", motion)
+    if motion in PROCEDURAL_KINDS:
+        spec = MotionSpec(motion, motion, frames or DEFAULT_KIND_FRAMES, seed=seed)
+        return _make_motion(spec, config)
+    path = Path(motion)
+    if not path.is_file():
+        raise InputError(
+            f"no such BVH file, and not a procedural kind ({', '.join(PROCEDURAL_KINDS)})", path
+        )
+    if frames is None:
+        total = resample(load_motion(path), config.fps).num_frames
+        frames = total - int(round(start_s * config.fps))
+        if frames < 1:
+            raise InputError(f"the clip is shorter than --start-s {start_s:g} s", path)
+    spec = MotionSpec(path.stem, "file", frames, path=str(path), start_s=start_s)
+    return _make_motion(spec, config)
+
+
+def simulation_key(positions: np.ndarray, faces: np.ndarray, motion: Motion, params: dict) -> str:
+    """SHA-256 of everything that decides a simulation: the rest garment (V, 3) and its faces
+    (F, 3), the motion's rotations, root positions and fps, and ``params`` (body, sim config)."""
+    h = hashlib.sha256(f"v{CACHE_VERSION}".encode())
+    h.update(json.dumps(params, sort_keys=True, default=str).encode())
+    for a in (positions, faces, motion.rotations, motion.root_positions):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    h.update(repr(float(motion.fps)).encode())
+    return h.hexdigest()
+
+
+def simulate_cached(
+    project: Project,
+    config: PipelineConfig,
+    motion: Motion,
+    log: Log = _quiet,
+    cache_root: Path | None = None,
+):
+    """The proxy simulated under ``motion`` with the project's settings, from the scratch cache
+    (``cache_root``, default :func:`scratch_dir`) when it holds this exact simulation.
+
+    Returns
+    -------
+    cache : core.sim.SimCache, positions (T, V, 3)
+    report : dict, the simulation's report (``ms_per_frame``...)
+    folder : Path of the cache entry
+    cached : bool, whether it came from the cache
+    """
+    from core.sim import load_cache, save_cache
+    from core.sim.simulate import simulate
+
+    mesh, proxy_file = project_proxy(project)
+    sim_cfg = sim_config(config)
+    params = {"sim": sim_cfg.as_dict(), "body": asdict(config.body)}
+    key = simulation_key(mesh.vertices, mesh.faces, motion, params)
+    folder = (cache_root or scratch_dir()) / key[:32]
+    cache_file, report_file = folder / "cache.npz", folder / "report.json"
+    if cache_file.is_file() and report_file.is_file():
+        try:
+            report = json.loads(report_file.read_text(encoding="utf-8"))
+            return load_cache(cache_file), report, folder, True
+        except (InputError, ValueError, OSError):
+            log(f"  cached simulation in {folder} is unreadable: simulating again")
+    log(f"  simulating the proxy ({motion.num_frames} frames; cached in {folder})")
+    cache, report = simulate(mesh, motion, config.body, sim_cfg, path=proxy_file)
+    folder.mkdir(parents=True, exist_ok=True)
+    save_cache(cache_file, cache)
+    write_json(report_file, report.as_dict())
+    return cache, report.as_dict(), folder, False
+
+
+def evaluate_on_motion(
+    project: Project,
+    config: PipelineConfig,
+    motion: Motion,
+    source: str,
+    log: Log = _quiet,
+    cache_root: Path | None = None,
+) -> dict:
+    """Joint2Coarse against the simulation on one motion (already on the mannequin).
+
+    Raises
+    ------
+    InputError
+        No trained Joint2Coarse in the project; a motion shorter than its descriptor window.
+    """
+    import torch
+
+    from training.joint2coarse import (
+        Joint2CoarseStream,
+        joint2coarse_inputs,
+        load_model,
+        predict_proxy,
+        vertex_errors,
+    )
+    from training.joint2coarse.collision import penetration_summary, simulation_colliders
+
+    torch.set_num_threads(config.torch_threads)
+    model_file = project.path("joint2coarse", "joint2coarse.pt")
+    if not model_file.is_file():
+        raise InputError(
+            "the project has no trained Joint2Coarse: run dng train joint2coarse first", model_file
+        )
+    net = load_model(model_file)
+    window = net.config.window
+    if motion.num_frames < window:
+        raise InputError(
+            f"the motion has {motion.num_frames} frames, fewer than Joint2Coarse's descriptor "
+            f"window of {window} frames",
+            source,
+        )
+    reference, sim_report, folder, cached = simulate_cached(
+        project, config, motion, log, cache_root
+    )
+    joints, root_rot = joint2coarse_inputs(motion)
+    start = time.perf_counter()
+    pred = predict_proxy(net, joints, root_rot, source=source)
+    batch_ms = 1e3 * (time.perf_counter() - start) / len(pred)
+    stream = Joint2CoarseStream(net)
+    frame_ms = []
+    for t in range(len(joints)):
+        start = time.perf_counter()
+        stream.push(joints[t], root_rot[t])
+        frame_ms.append(1e3 * (time.perf_counter() - start))
+    top = float(project_proxy(project)[0].vertices[:, 1].max())
+    ends, radii = simulation_colliders(config.body, motion, top, sim_config(config).arm_colliders)
+    start = time.perf_counter()
+    pushed = predict_proxy(net, joints, root_rot, capsules=ends, radii=radii, source=source)
+    push_ms = 1e3 * (time.perf_counter() - start) / len(pred) - batch_ms
+    return {
+        "project": str(project.root),
+        "motion": source,
+        "frames": int(len(pred)),
+        "fps": float(motion.fps),
+        "vertices": int(pred.shape[1]),
+        "error_mm": asdict(vertex_errors(pred, reference.positions)),
+        "error_mm_pushed_out": asdict(vertex_errors(pushed, reference.positions)),
+        "penetration": {
+            "prediction": penetration_summary(pred, ends, radii),
+            "prediction_pushed_out": penetration_summary(pushed, ends, radii),
+            "simulation": penetration_summary(reference.positions, ends, radii),
+        },
+        "ms_per_frame": {
+            "simulation": float(sim_report["ms_per_frame"]),
+            "prediction": batch_ms,
+            "prediction_streaming": float(np.median(frame_ms)),
+            "push_out": max(push_ms, 0.0),
+        },
+        "simulation_cache": str(folder),
+        "simulation_from_cache": cached,
+    }
+
+
+def project_proxy(project: Project):
+    """The project's proxy in its rest pose (``proxy/positions.obj``) and that file's path."""
+    from core.mesh import load_mesh
+
+    path = project.path("proxy", "positions.obj")
+    if not path.is_file():
+        raise InputError("the project has no proxy: run dng demo or dng proxy first", path)
+    return load_mesh(path)[0], path
+
+
+def format_report(report: dict) -> str:
+    """The report as a few lines of text."""
+    e, q = report["error_mm"], report["error_mm_pushed_out"]
+    p, ms = report["penetration"], report["ms_per_frame"]
+    lines = [
+        f"{report['motion']}: {report['frames']} frames at {report['fps']:g} fps, "
+        f"{report['vertices']} proxy vertices",
+        f"{'':28s} {'mean mm':>8s} {'p95 mm':>8s} {'max mm':>8s} {'inside %':>9s} "
+        f"{'depth max mm':>13s} {'ms/frame':>9s}",
+    ]
+    rows = (
+        ("Joint2Coarse", e, p["prediction"], ms["prediction"]),
+        ("Joint2Coarse, pushed out", q, p["prediction_pushed_out"],
+         ms["prediction"] + ms["push_out"]),
+        ("simulation", None, p["simulation"], ms["simulation"]),
+    )  # fmt: skip
+    for name, err, pen, t in rows:
+        errs = (
+            f"{err['mean_mm']:8.1f} {err['p95_mm']:8.1f} {err['max_mm']:8.1f}"
+            if err
+            else f"{'-':>8s} {'-':>8s} {'-':>8s}"
+        )
+        lines.append(
+            f"{name:28s} {errs} {pen['inside_percent']:9.2f} {pen['max_mm']:13.1f} {t:9.2f}"
+        )
+    lines.append(
+        f"streaming (one frame at a time): {ms['prediction_streaming']:.2f} ms/frame; simulation "
+        f"{'from the cache' if report['simulation_from_cache'] else 'cached'} in "
+        f"{report['simulation_cache']}"
+    )
+    return "\n".join(lines)
