@@ -1,8 +1,13 @@
-"""``dng predict proxy PROJECT --motion M.bvh --out CACHE``: the proxy for any motion."""
+"""``dng predict proxy PROJECT --motion M.bvh --out CACHE``: the proxy for any motion.
+
+``--out X.usd`` (or ``.usda``, ``.usdc``) writes a USD stage for Blender, Marvelous Designer or
+CLO: the proxy with its UVs and, with ``--body``, the mannequin posed by the motion.
+"""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -13,14 +18,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         "proxy",
         help="coarse proxy positions for a motion, with Joint2Coarse (no simulation)",
         description=(
-            "Load any BVH (any rig: it is retargeted onto the project's mannequin), predict "
-            "the proxy for every frame and write a cache (.npz ours, .pc2, .mdd, or a folder "
-            "for an OBJ sequence)."
+            "Load any BVH or skinned glTF/GLB (any rig: it is retargeted onto the project's "
+            "mannequin), predict the proxy for every frame and write a cache (.npz ours, .pc2, "
+            ".mdd, a folder for an OBJ sequence, or .usd/.usda/.usdc: metres, Y up, the "
+            "project's fps)."
         ),
     )
     x.add_argument("project", help="project folder with a trained joint2coarse/")
-    x.add_argument("--motion", required=True, help="BVH file")
-    x.add_argument("--out", required=True, help="cache to write (.npz, .pc2, .mdd or a folder)")
+    x.add_argument("--motion", required=True, help="BVH or glTF/GLB file")
+    x.add_argument(
+        "--out", required=True, help="cache to write (.npz, .pc2, .mdd, .usd, .usda or a folder)"
+    )
+    x.add_argument(
+        "--body", action="store_true", help="USD --out only: add the mannequin posed by the motion"
+    )
     x.add_argument(
         "--push-out",
         action="store_true",
@@ -39,9 +50,13 @@ def run_proxy(args: argparse.Namespace) -> int:
     from core.motion.retarget import retarget
     from core.project import Project
     from core.sim import SimCache, export_cache
+    from core.usd import USD_SUFFIXES, write_usd
     from training.joint2coarse import joint2coarse_inputs, load_model, predict_proxy
     from training.pipeline import project_config
 
+    usd = Path(args.out).suffix.lower() in USD_SUFFIXES
+    if args.body and not usd:
+        raise InputError("--body needs a USD --out (.usd, .usda or .usdc)", args.out)
     project = Project(args.project)
     config = project_config(project)
     model = project.path("joint2coarse", "joint2coarse.pt")
@@ -65,6 +80,43 @@ def run_proxy(args: argparse.Namespace) -> int:
     ms = 1e3 * (time.perf_counter() - start) / len(positions)
     faces = proxy.faces
     params = {"joint2coarse": str(model), "motion": args.motion, "push_out": args.push_out}
-    export_cache(args.out, SimCache(positions, faces, config.fps, params))
+    if usd:
+        write_usd(
+            args.out, usd_meshes(project, config, motion, positions, faces, args.body), config.fps
+        )
+    else:
+        export_cache(args.out, SimCache(positions, faces, config.fps, params))
     print(f"{len(positions)} frames x {positions.shape[1]} vertices, {ms:.2f} ms/frame: {args.out}")
     return 0
+
+
+def usd_meshes(project, config, motion, positions, faces, body: bool) -> list:
+    """The USD stage's meshes: ``Proxy`` (positions (T, V, 3), faces (F, 3)) with the UVs of
+    ``proxy/proxy.obj`` where its faces match corner for corner through ``seams.npz``, and,
+    with ``body``, ``Body``: the project's mannequin skinned by ``motion`` (on its joints)."""
+    import numpy as np
+
+    from core.mesh import load_mesh
+    from core.usd import UsdMesh
+
+    uvs = uv_faces = None
+    uv_file, seams = project.path("proxy", "proxy.obj"), project.path("proxy", "seams.npz")
+    if uv_file.is_file() and seams.is_file():
+        uv_mesh = load_mesh(uv_file)[0]
+        with np.load(seams) as z:
+            seam_map = z["seam_map"]
+        same = (
+            uv_mesh.faces.shape == faces.shape
+            and uv_mesh.faces.max() < len(seam_map)
+            and seam_map.max() < positions.shape[1]
+        )
+        if uv_mesh.uvs is not None and same and np.array_equal(seam_map[uv_mesh.faces], faces):
+            uvs, uv_faces = uv_mesh.uvs, uv_mesh.faces
+    meshes = [UsdMesh("Proxy", positions, faces, uvs, uv_faces, double_sided=True)]
+    if body:
+        from core.body.mannequin import make_body
+        from core.body.skinning import pose_body
+
+        mannequin = make_body(config.body)
+        meshes.append(UsdMesh("Body", pose_body(mannequin, motion), mannequin.faces))
+    return meshes

@@ -8,6 +8,8 @@ folder/       an OBJ sequence: one ``frame_NNNN.obj`` per frame, same topology i
               point count, start frame, sample rate, sample count) then float32 xyz per point.
 ``.mdd``      LightWave MDD: big-endian frame count, point count, float32 times, float32 xyz.
               Coordinates are stored as given (exporters differ on axis conventions).
+``.usd``      USD (also ``.usda`` text, ``.usdc``), written only: a ``Garment`` mesh with points
+              sampled at the cache's fps, metres, Y up (:mod:`core.usd`).
 
 PC2 and MDD hold no faces: reading them needs the garment's topology. Every reader checks that
 the data is complete, finite and of one topology, and raises ``InputError`` naming the file.
@@ -27,6 +29,7 @@ import numpy as np
 
 from core.errors import InputError
 from core.fileio import atomic_open, json_default
+from core.usd import USD_SUFFIXES, UsdMesh, write_usd
 
 CACHE_SUFFIXES = (".npz", ".pc2", ".mdd")
 _PC2_MAGIC = b"POINTCACHE2\0"
@@ -306,10 +309,15 @@ def read_mdd(path: str | os.PathLike, faces: np.ndarray, fps: float | None = Non
 
 
 def export_cache(path: str | os.PathLike, cache: SimCache) -> None:
-    """Write ``cache`` by extension: ``.npz``, ``.pc2``, ``.mdd``, or a folder (OBJ sequence)."""
+    """Write ``cache`` by extension: ``.npz``, ``.pc2``, ``.mdd``, ``.usd``/``.usda``/``.usdc``,
+    or a folder (OBJ sequence)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix == ".npz":
+    if suffix in USD_SUFFIXES:
+        write_usd(
+            path, [UsdMesh("Garment", cache.positions, cache.faces, double_sided=True)], cache.fps
+        )
+    elif suffix == ".npz":
         save_cache(path, cache)
     elif suffix == ".pc2":
         write_pc2(path, cache)
@@ -319,7 +327,9 @@ def export_cache(path: str | os.PathLike, cache: SimCache) -> None:
         write_obj_sequence(path, cache)
     else:
         raise InputError(
-            f"unknown cache type {suffix!r}; use .npz, .pc2, .mdd or a folder for OBJ frames", path
+            f"unknown cache type {suffix!r}; use .npz, .pc2, .mdd, .usd, .usda or a folder for "
+            "OBJ frames",
+            path,
         )
 
 
