@@ -13,8 +13,17 @@ it, a synthetic skirt proxy (about 2k vertices, :func:`training.renderer.synthet
 a flat background, with random weights at the preset's sizes (speed does not depend on the
 weights) and a paper-sized Joint2Coarse on a synthetic walk.
 
+Paths (``--path``): ``numpy`` is today's playback (Embree rasterizer, numpy features, the
+network on ``--device``); ``torch`` is :class:`training.torchpath.TorchPlayer`, everything on
+the device from a bundle (``--bundle FILE`` from ``dng export torch``, or made from
+``--project``, or a synthetic one): Joint2Coarse, the body background (part of each frame
+there), rasterization, features and network, with nothing but scalars read back. The torch path
+also reports batched throughput (``--batch N`` consecutive frames per call, background
+included). Every row names the device and the torch version.
+
 Targets: >= 10 fps at 128 px and >= 3 fps at 256 px on 2 CPU cores (the ``cpu`` preset);
->= 100 fps at 512 px on a GPU (``--device cuda``, the ``paper`` preset).
+>= 100 fps at 512 px and >= 300 fps at 256 px on a GPU (``--device cuda``, the ``paper``
+preset), Joint2Coarse under 0.5 ms per frame there.
 """
 
 from __future__ import annotations
@@ -29,7 +38,14 @@ import numpy as np
 HELP = "neural rendering: Joint2Coarse + raster/features + network ms per frame vs fps targets"
 
 #: (device type, preset, size) -> frames per second to reach.
-TARGETS_FPS = {("cpu", "cpu", 128): 10.0, ("cpu", "cpu", 256): 3.0, ("cuda", "paper", 512): 100.0}
+TARGETS_FPS = {
+    ("cpu", "cpu", 128): 10.0,
+    ("cpu", "cpu", 256): 3.0,
+    ("cuda", "paper", 256): 300.0,
+    ("cuda", "paper", 512): 100.0,
+}
+#: Joint2Coarse ms per frame to stay under on a GPU.
+TARGET_J2C_MS_CUDA = 0.5
 #: Timed frames after the warm-up ones.
 DEFAULT_FRAMES = 12
 WARMUP = 2
@@ -255,6 +271,11 @@ def measure(
                     if setup.measures_background
                     else None,
                     "load_average": os.getloadavg()[0],
+                    "path": "numpy",
+                    "batch": 1,
+                    "batch_fps": None,
+                    "device_name": device_name(device),
+                    "torch": torch.__version__,
                 }
                 rows.append(row)
                 if report is not None:
@@ -262,9 +283,241 @@ def measure(
     return rows
 
 
+def device_name(device) -> str:
+    """The GPU's name, or the CPU's model and core count."""
+    import torch
+
+    if str(device).startswith("cuda"):
+        return torch.cuda.get_device_name(torch.device(device))
+    model = ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(
+                (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), ""
+            )
+    except OSError:
+        pass
+    return f"{model or 'CPU'} ({os.cpu_count()} cores)"
+
+
+def synthetic_bundle(frames: int, resolution: int = 64) -> dict:
+    """A torch bundle of the synthetic skirt (no body: a flat background), for the torch path
+    without a project. Joint2Coarse has random weights and output statistics that put the skirt
+    at the synthetic walk's root (its mean is the skirt, its spread a millimetre), so it costs
+    what a trained one costs and its proxy stays a skirt in view."""
+    import torch
+
+    from core.features import FeatureConfig
+    from training.joint2coarse import Joint2CoarseConfig, joint2coarse_inputs
+    from training.joint2coarse.descriptor import heading_rotations, to_root_frame
+    from training.joint2coarse.model import MODEL_FORMAT, Joint2CoarseNet
+    from training.joint2coarse.synthetic import synthetic_walk
+    from training.renderer import RenderNet, synthetic_scene
+    from training.renderer.config import RendererConfig
+    from training.torchpath import BUNDLE_FORMAT
+
+    scene = synthetic_scene(frames, resolution=resolution, seed=0)
+    motion = synthetic_walk(frames, seed=0)
+    joints, root_rot = joint2coarse_inputs(motion)
+    config = Joint2CoarseConfig()
+    torch.manual_seed(0)
+    n = scene.proxy.shape[1]
+    net = Joint2CoarseNet(config, n, config.num_samples * 57).eval()
+    local = to_root_frame(scene.proxy[:1], joints[:1, 0], heading_rotations(root_rot[:1]))
+    net.set_statistics(
+        net.desc_mean, net.desc_std, local.reshape(-1), np.full(3 * n, 1e-3, np.float32)
+    )
+    renderer = RenderNet(RendererConfig())
+    fc = FeatureConfig()
+    as_t = lambda a, dt: torch.from_numpy(np.ascontiguousarray(a, dt))  # noqa: E731
+    return {
+        "format": BUNDLE_FORMAT,
+        "joint2coarse": {
+            "format": MODEL_FORMAT,
+            "config": config.to_dict(),
+            "n_vertices": n,
+            "descriptor_dim": config.num_samples * 57,
+            "state_dict": net.state_dict(),
+        },
+        "renderer": {"config": renderer.config.to_dict(), "generator": renderer.state_dict()},
+        "proxy": {
+            "faces": as_t(scene.faces, np.int64),
+            "uvs": as_t(scene.uvs, np.float32),
+            "seam_map": torch.arange(n),
+        },
+        "body": {
+            "vertices": torch.zeros(0, 3),
+            "weights": torch.zeros(0, 1),
+            "faces": torch.zeros(0, 3, dtype=torch.long),
+        },
+        "rig": {"fov_y_deg": 40.0, "target_y": 0.75, "radius": 2.2},
+        "features": {"sigma": fc.sigma, "frame_offsets": list(fc.frame_offsets)},
+        "clips": {
+            "synthetic": {
+                "joints": as_t(joints, np.float32),
+                "root_rotations": as_t(root_rot, np.float32),
+                "root_positions": as_t(joints[:, 0], np.float64),
+                "transforms": torch.eye(4).expand(frames, 1, 4, 4).clone(),
+                "fps": float(motion.fps),
+            }
+        },
+    }
+
+
+def with_renderer(bundle: dict, name: str) -> dict:
+    """The bundle with the renderer of ``name``: ``project`` (its own) or a preset with random
+    weights (speed does not depend on the weights)."""
+    import torch
+
+    from core.errors import InputError
+    from training.renderer import PRESETS, RenderNet
+
+    if name == "project":
+        return bundle
+    if name not in PRESETS:
+        raise InputError(f"unknown preset {name!r}; choose from project, {', '.join(PRESETS)}")
+    torch.manual_seed(0)
+    net = RenderNet(PRESETS[name])
+    return {**bundle, "renderer": {"config": net.config.to_dict(), "generator": net.state_dict()}}
+
+
+def time_torch_path(player, camera, frames: int, batch: int) -> dict:
+    """Median ms per streamed frame (end to end, and by part) and batched frames per second.
+
+    Returns a dict: ``joint2coarse_ms``, ``background_ms``, ``raster_feat_ms`` (proxy
+    rasterization, UV and motion-feature maps, texture sample), ``network_ms`` (the rest),
+    ``total_ms`` (one streamed frame, background included), ``batch_fps``, ``crop`` (w, h).
+    """
+    import torch
+
+    from training.torchpath import TorchCamera
+
+    dev = player.device
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    tcam = TorchCamera.from_camera(camera, dev)
+
+    def median_ms(fn) -> float:
+        times = []
+        for t in range(frames):
+            sync()
+            t0 = time.perf_counter()
+            fn(t)
+            sync()
+            if t >= WARMUP or frames <= WARMUP:
+                times.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(times))
+
+    total = median_ms(lambda t: player.render(t, camera))
+    box = [None]
+
+    def raster_feat(t):
+        f = player._frames([t])
+        v = player.proxy(f)
+        box[0] = player._box(v, tcam)
+        if box[0] is not None:
+            player._inputs(f, v, tcam.crop(*box[0]))
+
+    with torch.no_grad():
+        j2c = median_ms(lambda t: player.proxy([t]))
+        background = median_ms(lambda t: player.background([t], tcam))
+        feat = median_ms(raster_feat) - j2c
+    batch = max(1, min(batch, frames))
+    starts = list(range(0, frames - batch + 1, batch)) or [0]
+    player.render_batch(starts[0], batch, camera)  # warm-up
+    times = []
+    for s0 in starts:
+        sync()
+        t0 = time.perf_counter()
+        player.render_batch(s0, batch, camera)
+        sync()
+        times.append(time.perf_counter() - t0)
+    if player.window == "full":
+        player.check_overflow()
+    b = box[0] or (0, 0, 0, 0)
+    return {
+        "joint2coarse_ms": j2c,
+        "background_ms": background,
+        "raster_feat_ms": feat,
+        "network_ms": total - j2c - background - feat,
+        "total_ms": total,
+        "batch": batch,
+        "batch_fps": batch / float(np.median(times)),
+        "crop": [b[2], b[3]],
+    }
+
+
+def measure_torch(
+    bundle: dict,
+    setup_name: str,
+    presets: list[str],
+    sizes: list[int],
+    threads: list[int],
+    device: str,
+    batch: int,
+    frames: int,
+    options: dict,
+    report=None,
+) -> list[dict]:
+    """Rows of :func:`measure`'s form for the torch path (``path`` "torch", ``batch_fps``)."""
+    import torch
+
+    from training.torchpath import TorchPlayer
+
+    rows = []
+    dev_type = "cuda" if str(device).startswith("cuda") else "cpu"
+    clip = next(iter(bundle["clips"]))
+    for name in presets:
+        player = TorchPlayer(with_renderer(bundle, name), device, **options)
+        player.set_clip(clip)
+        n = min(frames, player.num_frames)
+        kind = name
+        if name == "project":
+            kind = "paper" if player.config.max_width >= 512 else "cpu"
+        for size in sizes:
+            camera = player.camera(0, size, size, azimuth_deg=30.0)
+            for n_threads in threads:
+                torch.set_num_threads(n_threads)
+                timing = time_torch_path(player, camera, n, batch)
+                frame_ms = timing["total_ms"] - timing["background_ms"]
+                target = TARGETS_FPS.get((dev_type, kind, size))
+                fps = 1e3 / frame_ms
+                row = {
+                    "setup": setup_name,
+                    "preset": name,
+                    "size": size,
+                    "threads": n_threads,
+                    "device": str(device),
+                    "frames": n - WARMUP,
+                    "crop": timing["crop"],
+                    "joint2coarse_ms": timing["joint2coarse_ms"],
+                    "raster_feat_ms": timing["raster_feat_ms"],
+                    "network_ms": timing["network_ms"],
+                    "frame_ms": frame_ms,
+                    "fps": fps,
+                    "target_fps": target,
+                    "meets_target": None if target is None else bool(fps >= target),
+                    "background_ms": timing["background_ms"],
+                    "fps_with_background": 1e3 / timing["total_ms"],
+                    "load_average": os.getloadavg()[0],
+                    "path": "torch",
+                    "batch": timing["batch"],
+                    "batch_fps": timing["batch_fps"],
+                    "device_name": device_name(device),
+                    "torch": torch.__version__,
+                    "options": {k: v for k, v in options.items() if v},
+                }
+                if dev_type == "cuda":
+                    row["joint2coarse_target_ms"] = TARGET_J2C_MS_CUDA
+                rows.append(row)
+                if report is not None:
+                    report(row)
+    return rows
+
+
 HEADER = (
-    f"{'preset':>7} {'size':>5} {'thr':>3} {'crop':>9} {'j2c':>6} {'raster+feat':>11} "
-    f"{'network':>8} {'total ms':>8} {'fps':>6} {'target':>7} {'+bg ms':>7} {'load':>5}"
+    f"{'path':>5} {'preset':>7} {'size':>5} {'thr':>3} {'crop':>9} {'j2c':>6} "
+    f"{'raster+feat':>11} {'network':>8} {'total ms':>8} {'fps':>6} {'target':>8} "
+    f"{'+bg ms':>7} {'e2e fps':>7} {'batch':>5} {'batch fps':>9} {'load':>5}  device / torch"
 )
 
 
@@ -275,11 +528,15 @@ def format_row(r: dict) -> str:
         else f"{'ok' if r['meets_target'] else 'MISS'} {r['target_fps']:g}"
     )
     bg = "" if r["background_ms"] is None else f"{r['background_ms']:.1f}"
+    e2e = "" if r["fps_with_background"] is None else f"{r['fps_with_background']:.1f}"
+    bfps = "" if r.get("batch_fps") is None else f"{r['batch_fps']:.1f}"
     crop = f"{r['crop'][0]}x{r['crop'][1]}"
     return (
-        f"{r['preset']:>7} {r['size']:>5} {r['threads']:>3} {crop:>9} {r['joint2coarse_ms']:>6.2f} "
-        f"{r['raster_feat_ms']:>11.1f} {r['network_ms']:>8.1f} {r['frame_ms']:>8.1f} "
-        f"{r['fps']:>6.1f} {target:>7} {bg:>7} {r['load_average']:>5.2f}"
+        f"{r.get('path', 'numpy'):>5} {r['preset']:>7} {r['size']:>5} {r['threads']:>3} "
+        f"{crop:>9} {r['joint2coarse_ms']:>6.2f} {r['raster_feat_ms']:>11.1f} "
+        f"{r['network_ms']:>8.1f} {r['frame_ms']:>8.1f} {r['fps']:>6.1f} {target:>8} {bg:>7} "
+        f"{e2e:>7} {r.get('batch', 1):>5} {bfps:>9} {r['load_average']:>5.2f}  "
+        f"{r.get('device_name', '')} / torch {r.get('torch', '')}"
     )
 
 
@@ -287,23 +544,46 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from app.bench import add_output_arguments
 
     add_output_arguments(parser)
-    parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512], metavar="PX")
+    parser.add_argument(
+        "--sizes", "--size", type=int, nargs="+", default=None, metavar="PX",
+        help="image sizes (default: 128 256 512 on the numpy path, 256 512 on the torch path)",
+    )  # fmt: skip
     parser.add_argument(
         "--threads", type=int, nargs="+", default=None,
         help="torch CPU threads to try (default: 1 2 on CPU, 1 on CUDA)",
     )  # fmt: skip
     parser.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
     parser.add_argument(
+        "--path", choices=("numpy", "torch", "both"), default=None,
+        help="numpy: today's playback; torch: everything on the device (training.torchpath); "
+        "default numpy on CPU, torch on CUDA",
+    )  # fmt: skip
+    parser.add_argument(
         "--presets", nargs="+", default=None, metavar="NAME",
         help="renderer presets with random weights (tiny, cpu, paper) or 'project' (the "
         "project's trained model); default: cpu on CPU, paper on CUDA, plus project with "
-        "--project",
+        "--project or --bundle",
     )  # fmt: skip
     parser.add_argument("--project", default=None, help="a trained project (else synthetic)")
+    parser.add_argument(
+        "--bundle", default=None, help="a torch bundle (dng export torch) for the torch path"
+    )
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed frames")
+    parser.add_argument(
+        "--batch", type=int, default=8, help="frames per call of the torch path's batched run"
+    )
     parser.add_argument(
         "--resolution", type=int, default=64, help="synthetic proxy columns (64: 2k vertices)"
     )
+    parser.add_argument(
+        "--window", choices=("crop", "full"), default="crop",
+        help="torch path: the network on the proxy's box (reads 4 numbers per frame) or on the "
+        "whole image (reads nothing)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--channels-last", action="store_true", help="torch path: channels-last convolutions"
+    )
+    parser.add_argument("--bf16", action="store_true", help="torch path: bfloat16 autocast")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -318,43 +598,81 @@ def run(args: argparse.Namespace) -> int:
     cuda = args.device.startswith("cuda")
     if cuda and not torch.cuda.is_available():
         raise InputError("--device cuda: no CUDA GPU on this machine")
-    if args.frames < 1 or any(s < 8 for s in args.sizes):
-        raise InputError("--frames must be >= 1 and --sizes at least 8 pixels")
+    paths = {"numpy": ["numpy"], "torch": ["torch"], "both": ["numpy", "torch"]}[
+        args.path or ("torch" if cuda or args.bundle else "numpy")
+    ]
+    sizes = args.sizes or ([256, 512] if paths == ["torch"] else [128, 256, 512])
+    if args.frames < 1 or any(s < 8 for s in sizes) or args.batch < 1:
+        raise InputError("--frames and --batch must be >= 1 and --sizes at least 8 pixels")
+    if "numpy" in paths and args.bundle:
+        raise InputError("--bundle is for the torch path: give --project for the numpy path")
     threads = args.threads or ([1] if cuda else [1, 2])
     presets = args.presets or (["paper"] if cuda else ["cpu"])
     n = args.frames + WARMUP
-    setup = project_setup(args.project, n) if args.project else synthetic_setup(n, args.resolution)
-    if args.project and args.presets is None and setup.model is not None:
-        presets = ["project", *presets]
-    load_before = os.getloadavg()
     say = (lambda *a: None) if args.json else print
+    load_before = os.getloadavg()
+    rows = []
+    name = args.bundle or args.project or "synthetic"
     say(
-        f"setup {setup.name}: proxy {setup.proxy.shape[1]} vertices, {len(setup.faces)} faces; "
-        f"device {args.device}; load average {load_before[0]:.2f} (1 min), "
+        f"setup {name}; device {args.device} ({device_name(args.device)}), torch "
+        f"{torch.__version__}; load average {load_before[0]:.2f} (1 min), "
         f"{load_before[1]:.2f} (5 min) on {os.cpu_count()} CPUs"
     )
     say(HEADER)
-    rows = measure(
-        setup, presets, args.sizes, threads, args.device, report=lambda r: say(format_row(r))
-    )
+    report = lambda r: say(format_row(r))  # noqa: E731
+    if "numpy" in paths:
+        setup = (
+            project_setup(args.project, n) if args.project else synthetic_setup(n, args.resolution)
+        )
+        use = presets
+        if args.project and args.presets is None and setup.model is not None:
+            use = ["project", *presets]
+        rows += measure(setup, use, sizes, threads, args.device, report=report)
+    if "torch" in paths:
+        if args.bundle:
+            from training.torchpath import load_bundle
+
+            bundle = load_bundle(args.bundle)
+        elif args.project:
+            from training.torchpath.export import make_bundle
+
+            bundle = make_bundle(args.project)
+        else:
+            bundle = synthetic_bundle(n, args.resolution)
+        use = presets
+        if (args.project or args.bundle) and args.presets is None:
+            use = ["project", *presets]
+        options = {"window": args.window, "channels_last": args.channels_last, "bf16": args.bf16}
+        rows += measure_torch(
+            bundle, name, use, sizes, threads, args.device, args.batch, n, options, report
+        )
     table = {
         "bench": "render",
-        "setup": setup.name,
+        "setup": name,
         "device": args.device,
-        "device_name": torch.cuda.get_device_name(0) if cuda else f"{os.cpu_count()} CPUs",
+        "device_name": device_name(args.device),
+        "torch": torch.__version__,
         "load_average_before": list(load_before),
         "load_average_after": list(os.getloadavg()),
         "targets_fps": {f"{d}/{p}/{s}": v for (d, p, s), v in TARGETS_FPS.items()},
+        "target_joint2coarse_ms_cuda": TARGET_J2C_MS_CUDA,
         "rows": rows,
     }
     out = Path(args.out)
     write_json(out / "render.json", table)
-    plot(rows, out / "render.png")
+    wrote = [out / "render.json"]
+    try:
+        import matplotlib  # noqa: F401  (a torch-only machine has none: the table is enough)
+    except ImportError:
+        say("no matplotlib here: plot skipped")
+    else:
+        plot(rows, out / "render.png")
+        wrote.append(out / "render.png")
     if args.json:
         print(json.dumps(table, indent=2))
     else:
         print(f"load average after: {os.getloadavg()[0]:.2f}")
-        print(f"wrote {out / 'render.json'} and {out / 'render.png'}")
+        print(f"wrote {' and '.join(map(str, wrote))}")
     return 0
 
 
@@ -367,7 +685,7 @@ def plot(rows: list[dict], path) -> None:
 
     from core.fileio import atomic_path
 
-    labels = [f"{r['preset']}\n{r['size']}px t{r['threads']}" for r in rows]
+    labels = [f"{r.get('path', '')} {r['preset']}\n{r['size']}px t{r['threads']}" for r in rows]
     x = np.arange(len(rows))
     fig, ax = plt.subplots(figsize=(max(5, 1.1 * len(rows) + 2), 4))
     bottom = np.zeros(len(rows))

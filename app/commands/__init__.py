@@ -8,7 +8,7 @@ libraries) is imported inside the handler, so ``dng --help`` stays fast.
 #: (a later issue's) is skipped.
 COMMANDS = (
     "demo", "motion", "body", "garment", "proxy", "simulate", "dataset",
-    "train", "predict", "render", "finetune", "eval", "bench", "gui",
+    "train", "predict", "render", "finetune", "eval", "bench", "export", "gui",
 )  # fmt: skip
 
 

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from core.errors import InputError
 from core.fileio import atomic_path
@@ -440,6 +439,10 @@ def train_joint2coarse(
     -------
     Joint2CoarseTrainResult
     """
+    # Here, not at module level: the torch-only render path (training.torchpath) imports
+    # this package, and a machine with only torch and numpy has no tqdm.
+    from tqdm.auto import tqdm
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = config or Joint2CoarseConfig()

@@ -33,7 +33,6 @@ import numpy as np
 import torch
 import torch.distributed as dist
 from torch.nn import functional as F
-from tqdm.auto import tqdm
 
 from core.errors import InputError
 from core.fileio import atomic_path
@@ -484,6 +483,10 @@ def train_renderer(
     -------
     RendererTrainResult
     """
+    # Here, not at module level: the torch-only render path (training.torchpath) imports
+    # this package, and a machine with only torch and numpy has no tqdm.
+    from tqdm.auto import tqdm
+
     cfg = config or RendererConfig()
     if trainable not in TRAINABLE:
         raise InputError(f"trainable must be one of {TRAINABLE}, got {trainable!r}")

@@ -1,0 +1,277 @@
+"""The torch-only render path: its rasterizer against the numpy reference, its import footprint,
+its images against today's path (training.playback), and CUDA against the CPU (``gpu``)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from core.camera import make_camera
+from core.features import vertex_motion_features_torch
+from core.raster import rasterize_reference
+from tests.conftest import assert_close
+from tests.test_raster import CAMERAS, check_invariants, compare_with_reference, scene_mesh, sphere
+from training.torchpath import TorchCamera, TorchPlayer, load_bundle, pair_count, rasterize
+from training.torchpath.shade import render_background
+
+#: Pixel differences (0..255 levels) allowed between the torch path and today's path: the two
+#: rasterizers disagree only at ties, which move single supersamples of the background and
+#: single pixels of the proxy. Measured on the smoke project at 96 px: mean 0.002 to 0.01.
+MEAN_LEVELS = 0.1
+#: Share of pixels allowed to differ by more than 2 levels (measured: under 0.3%).
+FAR_SHARE = 0.01
+
+ALL_CAMERAS = [
+    *CAMERAS,
+    make_camera((0.3, 1.1, 1.6), (0, 0.9, 0), width=96, height=80, fov_y_deg=40),
+]
+
+
+def torch_fragments(v, f, cam, device="cpu", **kwargs):
+    return rasterize(
+        torch.from_numpy(v).to(device),
+        torch.from_numpy(f).to(device),
+        TorchCamera.from_camera(cam, device, kwargs.get("dtype", torch.float32)),
+        **kwargs,
+    )
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("cam_index", range(len(ALL_CAMERAS)))
+def test_torch_raster_matches_reference(cam_index, dtype):
+    v, f = scene_mesh()
+    cam = ALL_CAMERAS[cam_index]
+    ref = rasterize_reference(v, f, cam)
+    out = torch_fragments(v, f, cam, dtype=dtype).numpy()
+    check_invariants(out, len(f))
+    assert out.mask.sum() > 0.1 * out.mask.size
+    compare_with_reference(out, ref, v, f)
+    same = (out.face_id == ref.face_id).mean()
+    assert same >= 0.999, f"{same:.4%} of face ids match"
+    if dtype == torch.float64:  # the reference's arithmetic: the same pixels
+        assert np.array_equal(out.face_id, ref.face_id)
+
+
+def test_torch_raster_inside_a_mesh_and_near_plane():
+    v, f = sphere(0.5, 2)
+    inside = make_camera((0.05, 1.1, 0.0), (0.3, 1.0, -1.0), width=32, height=24, fov_y_deg=80)
+    out = torch_fragments(v, f, inside).numpy()
+    assert out.mask.all()
+    compare_with_reference(out, rasterize_reference(v, f, inside), v, f)
+    cam = make_camera((0.0, 1.0, 2.0), (0, 1, 0), width=24, height=24, fov_y_deg=30)
+    far = torch_fragments(v, f, cam, near=1.9).numpy()
+    assert far.mask.sum() > 0 and (far.depth[far.mask] > 1.9).all()
+    compare_with_reference(far, rasterize_reference(v, f, cam, near=1.9), v, f)
+
+
+def test_torch_raster_batch_capacity_and_empty():
+    v, f = scene_mesh()
+    cam = ALL_CAMERAS[-1]
+    tcam = TorchCamera.from_camera(cam)
+    moved = v + np.float32([0.05, -0.02, 0.0])
+    batch = torch.from_numpy(np.stack([v, moved]))
+    faces = torch.from_numpy(f)
+    one = [rasterize(batch[i], faces, tcam) for i in range(2)]
+    both = rasterize(batch, faces, TorchCamera.stack([tcam, tcam]))
+    for i in range(2):
+        assert torch.equal(both.face_id[i], one[i].face_id)
+        assert torch.equal(both.barycentrics[i], one[i].barycentrics)
+    n = pair_count(batch[0], faces, tcam)
+    fixed = rasterize(batch[0], faces, tcam, capacity=n + 100)
+    assert not bool(fixed.overflow) and torch.equal(fixed.face_id, one[0].face_id)
+    short = rasterize(batch[0], faces, tcam, capacity=n // 2)
+    assert bool(short.overflow)
+    empty = rasterize(torch.zeros(0, 3), torch.zeros(0, 3, dtype=torch.long), tcam)
+    assert (empty.face_id == -1).all() and torch.isinf(empty.depth).all()
+
+
+#: Modules a machine with only torch and numpy lacks, blocked while importing the path.
+BLOCKED = ("open3d", "warp", "newton", "trimesh", "scipy", "PIL", "matplotlib", "tqdm", "imageio")
+
+
+def test_import_needs_only_torch_and_numpy():
+    code = f"""
+import sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in {BLOCKED!r}:
+            raise ImportError('blocked: ' + name)
+sys.meta_path.insert(0, Block())
+import training.torchpath
+assert not any(m in sys.modules for m in {BLOCKED!r})
+print('ok')
+"""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr
+
+
+def test_renderer_forward_bf16_close_to_fp32():
+    from training.renderer import PRESETS, RenderNet
+
+    torch.manual_seed(0)
+    net = RenderNet(PRESETS["tiny"]).eval()
+    g = torch.Generator().manual_seed(1)
+    uv = torch.rand(1, 2, 32, 32, generator=g)
+    motion = torch.rand(1, 95, 32, 32, generator=g)
+    mask = (torch.rand(1, 1, 32, 32, generator=g) > 0.3).float()
+    bg = torch.rand(1, 3, 32, 32, generator=g)
+    with torch.no_grad():
+        ref, _ = net(uv, motion, mask, uv, motion, mask, bg)
+        with torch.autocast("cpu", torch.bfloat16):
+            low, _ = net(uv, motion, mask, uv, motion, mask, bg)
+    diff = (low.float() - ref).abs()
+    # bf16 keeps 8 bits of mantissa: a few 1/255 steps at most on a [0, 1] image.
+    assert diff.mean() < 2e-3 and diff.max() < 2e-2, (float(diff.mean()), float(diff.max()))
+
+
+@pytest.fixture(scope="module")
+def bundle_file(smoke_project, tmp_path_factory):
+    from training.torchpath.export import export_bundle
+
+    path = tmp_path_factory.mktemp("torchpath") / "smoke.torch.pt"
+    export_bundle(smoke_project, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def playback(smoke_project):
+    from training.playback import Playback, load_motion_for
+
+    pb = Playback(smoke_project)
+    pb.set_motion(load_motion_for(pb.project, pb.config.train_motion.name))
+    return pb
+
+
+def test_torch_path_matches_playback(bundle_file, playback):
+    pb = playback
+    player = TorchPlayer(bundle_file)
+    player.set_clip(pb.config.train_motion.name)
+    for t in range(3):
+        assert_close(player.proxy([t])[0], pb.proxy_vertices(t), atol=1e-5, what="proxy")
+        assert_close(player.body([t])[0], pb.body_vertices(t), atol=1e-5, what="body")
+    diffs = []
+    encodes = pb.renderer.encodes
+    for t in range(4):
+        cam = pb.default_camera(t, 96, 96, azimuth_deg=30.0)
+        assert player.camera(t, 96, 96, azimuth_deg=30.0) == cam
+        ref = pb.render(t, cam)
+        out = player.render(t, cam)
+        assert out.dtype == torch.uint8 and out.shape == (96, 96, 3)
+        diffs.append(np.abs(out.numpy().astype(int) - ref.astype(int)))
+    d = np.stack(diffs)
+    assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
+    # Streamed as the numpy path: t-1's latent reused exactly when it is (same camera and box).
+    assert player.encodes == pb.renderer.encodes - encodes
+
+
+def test_torch_path_full_window_and_batch(bundle_file, playback):
+    from training.renderer.inference import FrameState, NeuralRenderer
+    from training.renderer.train import load_model
+
+    pb = playback
+    player = TorchPlayer(bundle_file, window="full")
+    player.set_clip(pb.config.train_motion.name)
+    cam = pb.default_camera(0, 64, 64)
+    batch = player.render_batch(0, 3, cam)
+    renderer = NeuralRenderer(load_model(pb.renderer_path)[1], pb.proxy_faces, pb.proxy_uvs)
+    for t in range(3):
+        streamed = player.render(t, cam)
+        assert (streamed.int() - batch[t].int()).abs().max() <= 1  # batched BLAS rounding
+        bg = pb.background(t, cam)
+        prev = FrameState(pb.proxy_vertices(max(t - 1, 0)), pb.joint_window(max(t - 1, 0)), bg)
+        frame = FrameState(pb.proxy_vertices(t), pb.joint_window(t), bg)
+        ref = renderer.render_pair(cam, frame, prev, crop=False)
+        d = np.abs(streamed.numpy().astype(int) - ref.astype(int))
+        assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
+    player.check_overflow()
+
+
+def test_bad_bundle_names_the_file(tmp_path):
+    from core.errors import InputError
+
+    bad = tmp_path / "x.pt"
+    bad.write_bytes(b"not a bundle")
+    with pytest.raises(InputError, match="x.pt"):
+        load_bundle(bad)
+    with pytest.raises(InputError, match="missing.pt"):
+        load_bundle(tmp_path / "missing.pt")
+
+
+def test_torch_background_matches_numpy(playback):
+    pb = playback
+    cam = pb.default_camera(2, 80, 64, azimuth_deg=-40.0)
+    ref = pb.background(2, cam)
+    out = render_background(
+        torch.from_numpy(pb.body_vertices(2).copy()),
+        torch.from_numpy(pb.body_faces.copy()),
+        TorchCamera.from_camera(cam),
+    ).numpy()
+    d = np.abs(out.astype(int) - ref.astype(int))
+    assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
+
+
+# -- CUDA against the CPU reference (skipped without a GPU) -----------------------------------
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("cam_index", range(len(ALL_CAMERAS)))
+def test_gpu_raster_matches_reference(cam_index):
+    v, f = scene_mesh()
+    cam = ALL_CAMERAS[cam_index]
+    out = torch_fragments(v, f, cam, "cuda").numpy()
+    ref = rasterize_reference(v, f, cam)
+    check_invariants(out, len(f))
+    compare_with_reference(out, ref, v, f)
+
+
+@pytest.mark.gpu
+def test_gpu_motion_features_match_cpu(rng):
+    v = torch.from_numpy(rng.normal(size=(500, 3)).astype(np.float32))
+    w = torch.from_numpy(rng.normal(size=(5, 19, 3)).astype(np.float32))
+    cpu = vertex_motion_features_torch(v, w, 0.1)
+    gpu = vertex_motion_features_torch(v.cuda(), w.cuda(), 0.1).cpu()
+    assert_close(gpu, cpu, atol=1e-6, what="motion features")
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("bf16", [False, True])
+def test_gpu_renderer_forward_matches_cpu(bf16):
+    from training.renderer import PRESETS, RenderNet
+
+    torch.manual_seed(0)
+    net = RenderNet(PRESETS["cpu"]).eval()
+    g = torch.Generator().manual_seed(1)
+    args = [
+        torch.rand(1, 2, 64, 64, generator=g),
+        torch.rand(1, 95, 64, 64, generator=g),
+        (torch.rand(1, 1, 64, 64, generator=g) > 0.3).float(),
+    ]
+    bg = torch.rand(1, 3, 64, 64, generator=g)
+    with torch.no_grad():
+        ref, _ = net(*args, *args, bg)
+        net.cuda()
+        with torch.autocast("cuda", torch.bfloat16, enabled=bf16):
+            out, _ = net(*[a.cuda() for a in args + args], bg.cuda())
+    diff = (out.float().cpu() - ref).abs()
+    tol = (2e-3, 2e-2) if bf16 else (1e-4, 1e-3)  # TF32 convolutions in fp32
+    assert diff.mean() < tol[0] and diff.max() < tol[1], (float(diff.mean()), float(diff.max()))
+
+
+@pytest.mark.gpu
+def test_gpu_torch_path_matches_cpu(bundle_file, playback):
+    pb = playback
+    cpu = TorchPlayer(bundle_file)
+    gpu = TorchPlayer(bundle_file, "cuda")
+    name = pb.config.train_motion.name
+    cpu.set_clip(name)
+    gpu.set_clip(name)
+    # Joint2Coarse on the GPU against the CPU.
+    assert_close(gpu.proxy(range(4)).cpu(), cpu.proxy(range(4)), atol=1e-4, what="Joint2Coarse")
+    for t in range(3):
+        cam = pb.default_camera(t, 128, 128, azimuth_deg=30.0)
+        d = np.abs(gpu.render(t, cam).cpu().numpy().astype(int) - cpu.render(t, cam).numpy())
+        assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
