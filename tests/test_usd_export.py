@@ -160,3 +160,26 @@ def test_cli_body_needs_a_usd_out(dng, tmp_path):
     )
     assert code == 2 and not out and err.count("\n") == 1 and "--body needs a USD --out" in err
     assert not (tmp_path / "p.npz").exists()
+
+
+def test_predict_proxy_to_usd_from_a_gltf_motion(smoke_project, dng, tmp_path):
+    """glTF motion in, USD out: the USD's proxy is the .npz cache of the same command, every
+    frame, with the proxy's UVs; the posed mannequin is beside it."""
+    from core.sim.cache import load_cache
+    from tests.test_gltf_motion import motion_to_gltf, save
+
+    clip = save(motion_to_gltf(make_motion("walk", 20, 30.0, 1)), tmp_path / "walk.glb", "glb")
+    base = ["predict", "proxy", smoke_project, "--motion", clip]
+    code, _, err = dng(*base, "--out", tmp_path / "walk.npz")
+    assert code == 0, err
+    code, out, err = dng(*base, "--out", tmp_path / "walk.usda", "--body")
+    assert code == 0 and "walk.usda" in out, err
+    cache = load_cache(tmp_path / "walk.npz")
+    stage = Usd.Stage.Open(str(tmp_path / "walk.usda"))
+    assert stage.GetTimeCodesPerSecond() == cache.fps
+    proxy, frames = _read_mesh(stage, "Proxy")
+    assert np.array_equal(frames, cache.positions)
+    assert UsdGeom.PrimvarsAPI(proxy).GetPrimvar("st").GetInterpolation() == "faceVarying"
+    _, body = _read_mesh(stage, "Body")
+    assert body.shape[0] == cache.num_frames and body.shape[1] > 1000
+    assert np.isfinite(body).all() and 1.4 < float(np.ptp(body[0][:, 1])) < 2.0

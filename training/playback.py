@@ -46,9 +46,9 @@ def load_motion_for(
     ----------
     project : core.project.Project or a folder path
     path_or_kind : str or path
-        In this order: an existing BVH file (any rig: resampled to the project's fps and
-        retargeted onto its body); the name of a motion of the project (``motions/NAME.bvh``,
-        e.g. the training motion ``dance``); a procedural kind
+        In this order: an existing BVH or glTF/GLB file (any rig: resampled to the project's
+        fps and retargeted onto its body); the name of a motion of the project
+        (``motions/NAME.bvh``, e.g. the training motion ``dance``); a procedural kind
         (:data:`core.motion.procedural.PROCEDURAL_KINDS`) made on the project's body.
     frames : int, optional
         Keep the first ``frames`` frames (files, project motions) or make that many
@@ -61,7 +61,7 @@ def load_motion_for(
     core.motion.motion.Motion on the mannequin's joints. ``meta["project_motion"]`` holds the
     project motion's name when it is one (so its simulation can be shown beside it).
     """
-    from core.motion.load import load_motion, resample
+    from core.motion.load import MOTION_FILE_SUFFIXES, load_motion, resample
     from core.motion.mapping import canonical_positions
     from core.motion.procedural import PROCEDURAL_KINDS, make_motion
     from core.motion.retarget import retarget
@@ -74,7 +74,7 @@ def load_motion_for(
         raise InputError(f"frames must be >= 1, got {frames!r}")
     text = os.fspath(path_or_kind)
     path = Path(text)
-    if path.suffix.lower() == ".bvh" or path.is_file():
+    if path.suffix.lower() in MOTION_FILE_SUFFIXES or path.is_file():
         if not path.is_file():
             raise InputError("motion file not found", path)
         source = resample(load_motion(path), config.fps)

@@ -10,15 +10,17 @@ import math
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "motion",
-        help="inspect, make and retarget body motion (BVH)",
-        description="Body motion: BVH import (any rig, units, up axis), procedural clips, "
-        "retargeting onto the mannequin.",
+        help="inspect, make and retarget body motion (BVH, glTF/GLB in)",
+        description="Body motion: BVH and skinned glTF/GLB import (any rig, units, up axis), "
+        "procedural clips, retargeting onto the mannequin.",
     )
     sub = parser.add_subparsers(dest="motion_command", metavar="ACTION")
     sub.required = True
 
-    info = sub.add_parser("info", help="what a BVH file holds, mapped onto the canonical joints")
-    info.add_argument("file", help="BVH file")
+    info = sub.add_parser(
+        "info", help="what a BVH or glTF file holds, mapped onto the canonical joints"
+    )
+    info.add_argument("file", help="BVH file, or a skinned .gltf/.glb with an animation")
     info.add_argument("--json", action="store_true", help="print JSON instead of text")
     _add_import_options(info)
     info.set_defaults(handler=_info)
@@ -32,8 +34,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_shape_option(make)
     make.set_defaults(handler=_make)
 
-    retarget = sub.add_parser("retarget", help="retarget a BVH clip onto the mannequin")
-    retarget.add_argument("file", help="BVH file")
+    retarget = sub.add_parser("retarget", help="retarget a BVH or glTF clip onto the mannequin")
+    retarget.add_argument("file", help="BVH file, or a skinned .gltf/.glb with an animation")
     retarget.add_argument("--out", required=True, help="BVH file to write")
     retarget.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
     _add_shape_option(retarget)

@@ -91,27 +91,18 @@ def run_proxy(args: argparse.Namespace) -> int:
 
 
 def usd_meshes(project, config, motion, positions, faces, body: bool) -> list:
-    """The USD stage's meshes: ``Proxy`` (positions (T, V, 3), faces (F, 3)) with the UVs of
-    ``proxy/proxy.obj`` where its faces match corner for corner through ``seams.npz``, and,
-    with ``body``, ``Body``: the project's mannequin skinned by ``motion`` (on its joints)."""
-    import numpy as np
-
-    from core.mesh import load_mesh
+    """The USD stage's meshes: ``Proxy`` (positions (T, V, 3) over the seam-free ``faces``
+    (F, 3)); with the project's UV'd proxy (``proxy.obj``, ``seams.npz``) its topology is
+    ``seam_map[uv_faces]`` and its UVs the face-varying ``st``, as the renderer sees them.
+    With ``body``, also ``Body``: the project's mannequin skinned by ``motion`` (its joints)."""
     from core.usd import UsdMesh
+    from training.dataset import load_proxy_frames
 
     uvs = uv_faces = None
     uv_file, seams = project.path("proxy", "proxy.obj"), project.path("proxy", "seams.npz")
     if uv_file.is_file() and seams.is_file():
-        uv_mesh = load_mesh(uv_file)[0]
-        with np.load(seams) as z:
-            seam_map = z["seam_map"]
-        same = (
-            uv_mesh.faces.shape == faces.shape
-            and uv_mesh.faces.max() < len(seam_map)
-            and seam_map.max() < positions.shape[1]
-        )
-        if uv_mesh.uvs is not None and same and np.array_equal(seam_map[uv_mesh.faces], faces):
-            uvs, uv_faces = uv_mesh.uvs, uv_mesh.faces
+        frames = load_proxy_frames(project.root, positions)
+        faces, uvs, uv_faces = frames.seam_map[frames.faces], frames.uvs, frames.faces
     meshes = [UsdMesh("Proxy", positions, faces, uvs, uv_faces, double_sided=True)]
     if body:
         from core.body.mannequin import make_body

@@ -30,7 +30,9 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--garment", required=True, help="garment mesh file or built-in garment name")
-    p.add_argument("--motion", help="BVH file, or a procedural kind (dance, twirl, walk...)")
+    p.add_argument(
+        "--motion", help="BVH or glTF/GLB file, or a procedural kind (dance, twirl, walk...)"
+    )
     p.add_argument("--import", dest="import_from", metavar="CACHE", help="import this cache")
     p.add_argument("--out", required=True, help="cache to write (.npz)")
     p.add_argument("--frames", type=int, default=150, help="procedural motion: frames (150)")
@@ -87,9 +89,10 @@ def _motion(args, shape):
     spec = args.motion
     if spec is None:
         raise InputError("give --motion (BVH file or procedural kind) or --import CACHE")
-    if Path(spec).suffix.lower() == ".bvh" or Path(spec).exists():
+    from core.motion.load import MOTION_FILE_SUFFIXES, load_motion
+
+    if Path(spec).suffix.lower() in MOTION_FILE_SUFFIXES or Path(spec).exists():
         from core.body.shape import MANNEQUIN_JOINTS
-        from core.motion.load import load_motion
         from core.motion.mapping import canonical_positions
         from core.motion.retarget import retarget
 

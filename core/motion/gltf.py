@@ -61,6 +61,8 @@ KEYFRAME_FPS_RANGE = (10.0, 240.0)
 #: Keyframe rates within this relative distance of a whole number are snapped to it
 #: (float32 key times make 1/30 s steps come out as 29.99998 fps).
 _FPS_SNAP_REL = 1e-3
+#: Longest clip read, in frames (memory: a 4x4 transform per node and frame).
+MAX_FRAMES = 100_000
 #: A sample time this close (relative) below a key counts as on it (STEP samplers).
 _KEY_TIME_REL = 1e-6
 #: A joint whose FK position misses its glTF world position by more than this fraction of the
@@ -566,7 +568,12 @@ def gltf_to_motion(
                 f"animation {anim_index} sampler {ch.sampler}: unknown interpolation {interp!r}",
                 path,
             )
-        inputs = read_accessor(gltf, sampler.input)[:, 0]
+        inputs = read_accessor(gltf, sampler.input)
+        if inputs.shape[1] != 1:
+            raise InputError(
+                f"animation {anim_index} sampler {ch.sampler}: key times are not scalars", path
+            )
+        inputs = inputs[:, 0]
         outputs = read_accessor(gltf, sampler.output)
         if len(inputs) > 1 and not (np.diff(inputs) > 0).all():
             raise InputError(
@@ -590,6 +597,12 @@ def gltf_to_motion(
     key_fps = keyframe_fps(all_inputs)
     rate = float(fps) if fps is not None else (key_fps or DEFAULT_FPS)
     num_frames = int(round((t1 - t0) * rate)) + 1
+    if num_frames > MAX_FRAMES:
+        raise InputError(
+            f"animation {anim_index} lasts {t1 - t0:g} s: {num_frames} frames at {rate:g} fps, "
+            f"more than {MAX_FRAMES}",
+            path,
+        )
     times = np.minimum(t0 + np.arange(num_frames) / rate, t1)
 
     # World transforms of the needed nodes, animated (T, 4, 4) and at rest (4, 4).

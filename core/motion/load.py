@@ -39,6 +39,8 @@ ASSUMED_HEIGHT_M = 1.70
 #: Change of basis from a Z-up right-handed frame to Y up: (x, y, z) -> (x, z, -y).
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 _AXES = {"y": 1, "z": 2}
+#: Motion files :func:`load_motion` reads (any other name is read as BVH).
+MOTION_FILE_SUFFIXES: tuple[str, ...] = (".bvh", *GLTF_SUFFIXES)
 
 
 def load_motion(
