@@ -373,7 +373,10 @@ class StudioWindow:
 
     def _open_bvh_dialog(self) -> None:
         self._file_dialog(
-            gui.FileDialog.OPEN, "Open a motion", [(".bvh", "BVH motion")], self.c.load_motion
+            gui.FileDialog.OPEN,
+            "Open a motion",
+            [(".bvh .glb .gltf", "motion (BVH, glTF)")],
+            self.c.load_motion,
         )
 
     def _open_project_dialog(self) -> None:
