@@ -93,7 +93,9 @@ def test_torch_raster_batch_capacity_and_empty():
 BLOCKED = ("open3d", "warp", "newton", "trimesh", "scipy", "PIL", "matplotlib", "tqdm", "imageio")
 
 
-def test_import_needs_only_torch_and_numpy():
+def test_import_needs_only_torch_and_numpy(tmp_path):
+    """The path imports, and the torch-path bench runs, with every other library blocked
+    (what a machine with only torch and numpy sees)."""
     code = f"""
 import sys
 class Block:
@@ -103,10 +105,15 @@ class Block:
 sys.meta_path.insert(0, Block())
 import training.torchpath
 assert not any(m in sys.modules for m in {BLOCKED!r})
+from app.cli import main
+code = main(["bench", "render", "--path", "torch", "--size", "24", "--threads", "1",
+             "--frames", "1", "--batch", "1", "--presets", "tiny", "--out", {str(tmp_path)!r}])
+assert code == 0 and not any(m in sys.modules for m in {BLOCKED!r})
 print('ok')
 """
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr
+    assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr
+    assert (tmp_path / "render.json").is_file() and not (tmp_path / "render.png").exists()
 
 
 def test_renderer_forward_bf16_close_to_fp32():
@@ -275,3 +282,32 @@ def test_gpu_torch_path_matches_cpu(bundle_file, playback):
         cam = pb.default_camera(t, 128, 128, azimuth_deg=30.0)
         d = np.abs(gpu.render(t, cam).cpu().numpy().astype(int) - cpu.render(t, cam).numpy())
         assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
+
+
+def test_bench_render_torch_path_synthetic(tmp_path, dng):
+    import json
+
+    code, out, err = dng(
+        "bench", "render", "--path", "torch", "--size", 32, "--threads", 1, "--frames", 2,
+        "--batch", 2, "--presets", "tiny", "--out", tmp_path, "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    table = json.loads(out)
+    (row,) = table["rows"]
+    assert row["path"] == "torch" and row["size"] == 32 and row["batch"] == 2
+    assert row["fps"] > 0 and row["batch_fps"] > 0 and row["joint2coarse_ms"] > 0
+    assert row["torch"] == torch.__version__ and "cores" in row["device_name"]
+    assert (tmp_path / "render.json").is_file()
+
+
+def test_export_torch_cli(smoke_project, tmp_path, dng):
+    out = tmp_path / "b.pt"
+    code, text, err = dng("export", "torch", smoke_project, "--out", out, "--frames", 5)
+    assert code == 0, err
+    bundle = load_bundle(out)
+    (clip,) = bundle["clips"].values()
+    assert len(clip["joints"]) == 5 and "wrote" in text
+    code, _, err = dng("export", "torch", tmp_path / "nothing", "--out", tmp_path / "c.pt")
+    assert code == 2 and "nothing" in err and not (tmp_path / "c.pt").exists()
+    code, _, err = dng("bench", "render", "--bundle", out, "--device", "cuda:0")
+    assert code == 2 and ("CUDA" in err or torch.cuda.is_available())

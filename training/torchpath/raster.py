@@ -263,21 +263,25 @@ def rasterize(
     fg = torch.where(hit, zbuf & ((1 << _FACE_BITS) - 1), torch.zeros_like(zbuf))
     # The winners' barycentrics and depth, recomputed per pixel in float64 (float32 loses
     # 1e-5 of the depth of a surface seen at a grazing angle), in blocks: bounded memory.
+    # On the CPU only the covered pixels are visited (finding them costs nothing there); on
+    # other devices every pixel, so that nothing is read back.
     bary = torch.zeros((nb * hw, 3), dtype=torch.float32, device=dev)
     depth = torch.full((nb * hw,), float("inf"), dtype=torch.float32, device=dev)
-    for start in range(0, nb * hw, PAIR_BLOCK):
-        sl = slice(start, min(nb * hw, start + PAIR_BLOCK))
-        pixel = torch.arange(sl.start, sl.stop, device=dev)
+    pixels = hit.nonzero()[:, 0] if dev.type == "cpu" else None
+    n_visit = nb * hw if pixels is None else len(pixels)
+    for start in range(0, n_visit, PAIR_BLOCK):
+        stop = min(n_visit, start + PAIR_BLOCK)
+        pixel = torch.arange(start, stop, device=dev) if pixels is None else pixels[start:stop]
         b = torch.div(pixel, hw, rounding_mode="floor")
         rest = pixel - b * hw
         row, col = torch.div(rest, w, rounding_mode="floor"), rest % w
-        g = fg[sl]
+        g = fg[pixel]
         e, z = _edge_values(planes64[g], det64[g], row, col, k64[b])
         lam = (e / e.sum(-1, keepdim=True)).clamp(0, 1)
         lam = lam / lam.sum(-1, keepdim=True).clamp(min=1e-12)
-        on = hit[sl]
-        bary[sl] = torch.where(on[:, None], lam, torch.zeros_like(lam)).float()
-        depth[sl] = torch.where(on, z.float(), depth[sl])
+        on = hit[pixel]
+        bary[pixel] = torch.where(on[:, None], lam, torch.zeros_like(lam)).float()
+        depth[pixel] = torch.where(on, z.float(), depth[pixel])
     face_id = torch.where(hit, fg % n_faces, torch.full_like(fg, -1))
     return TorchFragments(face_id.view(shape), bary.view(*shape, 3), depth.view(shape), overflow)
 
