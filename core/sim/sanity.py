@@ -1,0 +1,91 @@
+"""Physical sanity measures of a simulated garment: does the cloth move as cloth does?
+
+Pure functions on position arrays (a :class:`~core.sim.cache.SimCache`'s ``positions``), used by
+the sanity tests and by ``dng bench sim``:
+
+* :func:`hem_radius` / :func:`hem_radius_ratio`: the hem's mean distance from the waist's axis,
+  against standing (a spin flares a skirt: at 1 rev/s the centripetal acceleration at a 30 cm
+  hem, 12 m/s^2, exceeds gravity);
+* :func:`hem_lift`: the hem's height below the waist against standing (a jump's fall lifts it);
+* :func:`hem_indices`: the hem, the garment's lowest boundary loop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core.errors import InputError
+from core.sim.pins import boundary_loops
+
+#: Default axis of the waist: the vertical (+Y up).
+UP = (0.0, 1.0, 0.0)
+
+
+def hem_indices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The hem: vertex indices (L,) int64 of the boundary loop with the lowest mean height.
+
+    vertices (V, 3) float rest positions, faces (F, 3) int. ``InputError`` for a closed mesh.
+    """
+    loops = boundary_loops(faces)
+    if not loops:
+        raise InputError("garment has no boundary loop: no hem to measure")
+    v = np.asarray(vertices, np.float64)
+    return min(loops, key=lambda lp: float(v[lp, 1].mean()))
+
+
+def _centres(positions: np.ndarray, waist: np.ndarray) -> np.ndarray:
+    if len(waist) == 0:
+        raise InputError("no waist vertices given: the waist's axis is undefined")
+    return np.asarray(positions, np.float64)[:, waist].mean(axis=1)
+
+
+def hem_radius(
+    positions: np.ndarray, hem: np.ndarray, waist: np.ndarray, axis=UP
+) -> np.ndarray:
+    """Mean distance of the hem from the waist's axis, per frame.
+
+    Parameters
+    ----------
+    positions : (T, V, 3) float, simulated frames
+    hem : (L,) int, hem vertex indices (:func:`hem_indices`)
+    waist : (P,) int, waistband vertices (a simulation's pinned vertices): their centroid at
+        each frame is a point of the axis
+    axis : (3,) or (T, 3) float, the axis direction (default vertical)
+
+    Returns
+    -------
+    (T,) float64, metres
+    """
+    p = np.asarray(positions, np.float64)
+    c = _centres(p, waist)
+    a = np.broadcast_to(np.asarray(axis, np.float64), c.shape)
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    d = p[:, hem] - c[:, None]
+    radial = d - (d * a[:, None]).sum(-1, keepdims=True) * a[:, None]
+    return np.linalg.norm(radial, axis=-1).mean(axis=1)
+
+
+def hem_radius_ratio(
+    positions: np.ndarray, hem: np.ndarray, waist: np.ndarray, axis=UP, start: float = 0.5
+) -> float:
+    """Mean hem radius over the clip's tail (frames from ``start`` x T on) over frame 0's.
+
+    Frame 0 is the garment settled on the standing body (the simulation's lead-in ends there).
+    Shapes as :func:`hem_radius`. Above 1: the hem flared out; below 1: it closed in.
+    """
+    r = hem_radius(positions, hem, waist, axis)
+    if len(r) < 2:
+        raise InputError(f"need at least 2 frames to compare with frame 0, got {len(r)}")
+    return float(r[int(start * len(r)) :].mean() / r[0])
+
+
+def hem_lift(positions: np.ndarray, hem: np.ndarray, waist: np.ndarray) -> np.ndarray:
+    """How far the hem rose towards the waist since frame 0, per frame (metres, (T,) float64).
+
+    The hem's mean height minus the waist's (centroid of ``waist``), against frame 0's: positive
+    when the hem hangs higher under the waist than standing (a fall lifts it, a landing drops
+    it). Shapes as :func:`hem_radius`.
+    """
+    p = np.asarray(positions, np.float64)
+    rel = p[:, hem, 1].mean(axis=1) - _centres(p, waist)[:, 1]
+    return rel - rel[0]
