@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import open3d.visualization.gui as gui
+from PIL import ImageGrab
 
 from app.gui.model import (
     CameraPose,
@@ -63,6 +64,7 @@ from app.gui.model import save_settings as write_settings
 from app.gui.window import COLOURS, StudioWindow
 from app.gui.workers import CancelToken, Worker
 from core.errors import InputError
+from core.fileio import atomic_path
 
 #: Play-clock / job-progress updates per second at most (in :meth:`Studio.service`).
 TICK_HZ = 30
@@ -1145,30 +1147,25 @@ class Studio:
     # ------------------------------------------------------------------------ screenshots
 
     def screenshot(self, path: str | os.PathLike) -> Path:
-        """Save the whole window as PNG (X11 capture with ImageMagick's ``import``)."""
-        import subprocess
+        """Save the whole window, panels included, as PNG.
 
+        The window's rectangle is read from the X server by Pillow's own XCB client (no outside
+        program); ``$DISPLAY`` is passed explicitly so that Pillow never falls back to running a
+        desktop screenshot tool. Open3D's ``render_to_image`` would give the 3D view only.
+        """
         self.wait_idle()
         for _ in range(3):  # let slow software frames (first use of a shader) reach the screen
             self.view.redraw()
             self.pump(1.0)
         self.wait_idle()
-        out = Path(path)
-        out.parent.mkdir(parents=True, exist_ok=True)
+        display = os.environ.get("DISPLAY")
+        if not display:
+            raise InputError("a screenshot needs an X display: DISPLAY is not set")
         f = self.view.window.os_frame
-        subprocess.run(
-            [
-                "import",
-                "-window",
-                "root",
-                "-crop",
-                f"{f.width}x{f.height}+{f.x}+{f.y}",
-                "+repage",
-                str(out),
-            ],
-            check=True,
-            timeout=30,
-        )
+        image = ImageGrab.grab(bbox=(f.x, f.y, f.x + f.width, f.y + f.height), xdisplay=display)
+        out = Path(path)
+        with atomic_path(out) as tmp:
+            image.save(tmp, format="PNG")
         return out
 
 
