@@ -6,9 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +28,7 @@ from app.gui.model import (
 from app.gui.workers import CancelToken, Worker
 from core.camera import make_camera, project
 from core.errors import InputError
+from tests.hang import run_watched
 
 # ----------------------------------------------------------------------- model, no display
 
@@ -211,15 +210,38 @@ def test_eta_counts_stages():
 TOUR_TIMEOUT_S = 300
 
 
+def test_a_hung_command_fails_with_its_stacks(tmp_path):
+    """The watchdog the tour runs under: a hang fails at once, with the Python stack of every
+    thread, the thread table, the log's tail and the newest files (no second try)."""
+    (tmp_path / "step-1.png").write_bytes(b"x")
+    code = (
+        "import faulthandler, signal, sys, threading, time\n"
+        "faulthandler.register(signal.SIGUSR1, all_threads=True)\n"
+        "print('tour 0.1 s: 1. garment', file=sys.stderr, flush=True)\n"
+        "def frozen_step():\n"
+        "    time.sleep(60)\n"
+        "threading.Thread(target=frozen_step, name='worker').start()\n"
+        "frozen_step()\n"
+    )
+    with pytest.raises(pytest.fail.Exception) as info:
+        run_watched([sys.executable, "-c", code], 5, tmp_path / "log.txt", watch_dir=tmp_path)
+    message = str(info.value)
+    assert "hung: no exit after 5 s" in message
+    assert "tour 0.1 s: 1. garment" in message  # the log's tail
+    assert message.count("in frozen_step") == 2  # both threads' stacks
+    assert "step-1.png" in message  # the newest file
+    assert "python" in message.split("busiest first:")[1].split("\n")[1]  # a thread row
+    assert (tmp_path / "log.txt.hang.txt").read_text() in message
+
+
 @pytest.fixture(scope="module")
 def tour(smoke_project, tmp_path_factory):
     """Run ``dng gui PROJECT --tour`` once on a copy of the smoke project (the tour saves
     window settings into project.json, so the shared project is not touched).
 
-    A tour that hangs is run once more, with a warning. Software Vulkan can freeze a window for
-    good: in one CI run the main thread waited in Filament's ``SyncThreads`` (from
-    ``Window::DrawOnce``) while a render thread spun at 100% CPU, from the first frame on; the
-    same code had passed the full test run and CI just before. A second hang fails the test.
+    A tour that hangs fails, with its diagnostics (:func:`tests.hang.run_watched`). Software
+    Vulkan has frozen a window for good once: the main thread waited in Filament's
+    ``SyncThreads`` (from ``Window::DrawOnce``) while a render thread spun at 100% CPU.
     """
     root = tmp_path_factory.mktemp("gui")
     project = root / "project"
@@ -228,28 +250,14 @@ def tour(smoke_project, tmp_path_factory):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     command = [sys.executable, "-m", "app.cli", "gui", str(project), "--tour", str(out)]
     cwd = Path(__file__).resolve().parents[1]
-    try:
-        proc = subprocess.run(
-            command, capture_output=True, text=True, timeout=TOUR_TIMEOUT_S, env=env, cwd=cwd
-        )
-    except subprocess.TimeoutExpired as exc:
-        stderr = exc.stderr or ""
-        if isinstance(stderr, bytes):
-            stderr = stderr.decode(errors="replace")
-        warnings.warn(
-            f"the GUI tour hung for {TOUR_TIMEOUT_S} s and runs again; its output ended: "
-            f"{stderr[-600:]}",
-            stacklevel=1,
-        )
-        shutil.rmtree(out, ignore_errors=True)
-        proc = subprocess.run(
-            command, capture_output=True, text=True, timeout=TOUR_TIMEOUT_S, env=env, cwd=cwd
-        )
+    log_path = root / "tour.log"
+    code = run_watched(command, TOUR_TIMEOUT_S, log_path, watch_dir=out, env=env, cwd=cwd)
+    log = log_path.read_text(errors="replace")
     report_file = out / "tour.json"
-    assert report_file.is_file(), proc.stderr[-4000:]
+    assert report_file.is_file(), log[-4000:]
     report = json.loads(report_file.read_text())
     assert "failure" not in report, report["failure"]
-    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert code == 0, log[-4000:]
     return report, out
 
 

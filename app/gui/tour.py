@@ -30,10 +30,16 @@ def _png(path: Path, image: np.ndarray) -> None:
 
 def run_tour(project: str, out_dir: str, width: int = 1500, height: int = 940) -> int:
     """Run :func:`tour` and exit the GUI whatever happens (the report says what failed)."""
+    import faulthandler
     import os
+    import signal
     import sys
     import traceback
 
+    if hasattr(signal, "SIGUSR1"):
+        # A tour that hangs (the GUI tests kill it past their limit) prints the Python stack of
+        # every thread on stderr first.
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report: dict = {"project": str(project)}
