@@ -139,6 +139,31 @@ def test_parts_listed_per_garment(coarse_garments):
     assert coarse_garments["dress"].num_components == 1 + 2 + 1 + 5
     for name in ("multilayer-skirt", "double-skirt", "pleated-skirt"):
         assert coarse_garments[name].num_components == len(parts[name])
+    # Single-layer garments: one piece of cloth each, straps and sleeves sewn in.
+    for name in ("tank-top", "t-shirt", "sleeveless-dress", "slip-dress", "slit-skirt"):
+        assert coarse_garments[name].num_components == 1
+    assert parts["tank-top"] == parts["t-shirt"] == ("top",)
+    assert parts["sleeveless-dress"] == parts["slip-dress"] == ("dress",)
+    assert parts["slit-skirt"] == ("layer-1",)
+
+
+@pytest.mark.parametrize(
+    ("name", "loops"),
+    [
+        ("tank-top", 4),
+        ("t-shirt", 4),
+        ("sleeveless-dress", 4),
+        ("slip-dress", 4),
+        ("slit-skirt", 2),
+    ],
+)
+def test_single_layer_garments_have_their_openings(coarse_garments, name, loops):
+    """Hem, neckline and two armholes (or cuffs); a skirt's waist and its hem up the slit."""
+    g = coarse_garments[name]
+    assert boundary_loops(g.mesh.faces) == loops
+    if name == "t-shirt":  # the sleeves reach down the arms, past the shoulders
+        x = np.abs(g.mesh.vertices[:, 0])
+        assert x.max() > BodyShape().shoulder_width / 2 + 0.1
 
 
 @pytest.mark.parametrize("name", COARSE)
@@ -320,6 +345,11 @@ def test_default_target_is_registered():
         "tango-skirt",
         "pleated-skirt",
         "dress",
+        "tank-top",
+        "t-shirt",
+        "sleeveless-dress",
+        "slip-dress",
+        "slit-skirt",
     }
     assert set(COARSE) == {"long-skirt", "short-skirt", "simple-dress"}
 
@@ -392,8 +422,9 @@ def test_cli_bad_extension_exits_2(tmp_path, capsys):
 @pytest.mark.slow
 def test_contact_sheet(tmp_path):
     """Render every garment on the default body, front/side/back, to /tmp/garments.png."""
-    pv = pytest.importorskip("pyvista")
     from pathlib import Path
+
+    import pyvista as pv  # heavy (VTK): only this slow test draws
 
     pv.OFF_SCREEN = True
     bv, bf = body_mesh(BodyShape())

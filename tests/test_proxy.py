@@ -230,7 +230,15 @@ def test_millimetre_input_gives_the_same_proxy_in_metres(skirt):
     mm = derive_proxy(Mesh(skirt.vertices * 1000, skirt.faces), cfg)
     assert mm.report["target"]["unit"] == "mm" and mm.target_scale == pytest.approx(1e-3)
     assert_valid_proxy(mm, 400)
-    np.testing.assert_allclose(mm.positions.vertices, metres.positions.vertices, atol=1e-4)
+    # The same surface in metres. Not vertex for vertex: on this perfectly regular grid many
+    # collapses cost exactly the same, and the rounding of x1000 picks among them. By the
+    # triangle inequality the two proxies are within the sum of their distances to the target.
+    assert mm.positions.num_vertices == metres.positions.num_vertices
+    apart = hausdorff(
+        mm.positions.vertices, mm.positions.faces, metres.positions.vertices,
+        metres.positions.faces, samples=2000,
+    )["hausdorff"]  # fmt: skip
+    assert apart <= mm.report["distance"]["hausdorff_m"] + metres.report["distance"]["hausdorff_m"]
     assert mm.report["distance"]["hausdorff_rel"] == pytest.approx(
         metres.report["distance"]["hausdorff_rel"], abs=1e-3
     )

@@ -7,7 +7,7 @@ fast-simplification) are imported inside the functions that need them.
 
 from core.proxy.atlas import Atlas, uv_atlas, uv_stats
 from core.proxy.config import Correspondence, ProxyConfig, ProxyResult
-from core.proxy.envelope import envelope_error, radial_envelope
+from core.proxy.envelope import covered_fraction, envelope_error, radial_envelope
 from core.proxy.metrics import correspond, hausdorff, transfer_to_proxy
 from core.proxy.pipeline import derive_proxy, fit_template, input_scale
 from core.proxy.simplify import decimate, relax, smooth_details
@@ -20,6 +20,7 @@ __all__ = [
     "ProxyResult",
     "boundary_loops",
     "correspond",
+    "covered_fraction",
     "decimate",
     "derive_proxy",
     "drop_small_components",

@@ -28,6 +28,14 @@ ENVELOPE_RAY_MARGIN = 0.1
 #: Largest fraction of the garment's area that may hide behind the radial envelope (farther
 #: than ``ProxyConfig.envelope_tolerance``) for ``layers="auto"`` to use the envelope.
 ENVELOPE_HIDDEN_FRACTION = 0.05
+#: Least fraction of the area of the parts around the axis that must have more cloth outside it
+#: (:func:`core.proxy.envelope.covered_fraction`) for ``layers="auto"`` to build the envelope:
+#: below this there are no stacked layers to collapse. Measured with
+#: ``dng garment make NAME`` and 20000 sampled faces: single-layer tank top, T-shirt torso
+#: without its sleeves, dresses and skirts 0-0.2 %; tango skirt (waistband) 1.6 %, dress (sash)
+#: 3 %; T-shirt 8 %; double, multilayer and pleated skirts 26-56 %. A sewn-on pocket or a
+#: narrow band stays under it.
+ENVELOPE_MIN_COVERED_FRACTION = 0.05
 #: Azimuth sectors, and the fraction of them a part must touch, to count as going around the
 #: body axis (skirt layers, bodices, waistbands) rather than hanging beside it (straps, bows).
 ENCLOSE_BINS = 36
@@ -74,8 +82,10 @@ class ProxyConfig:
     vertical (Y) body axis become one open surface, their outer radial envelope (rays from
     outside); parts beside the axis (straps, separate sleeves) are carried over as they are.
     Suits skirts and dresses. ``keep``: the cleaned surface itself (trousers, one-piece
-    T-shirts, single-layer garments). ``auto``: the envelope unless the tests under
-    ``envelope_tolerance`` and ``envelope_max_error`` reject it."""
+    T-shirts, single-layer garments). ``auto``: the envelope only when there are layers to
+    collapse (more than ``ENVELOPE_MIN_COVERED_FRACTION`` of the area has cloth outside it) and
+    the tests under ``envelope_tolerance`` and ``envelope_max_error`` accept it; a single-layer
+    garment (a dress with armholes, a top, a skirt with a slit) is always kept."""
     envelope_tolerance: float = 0.03
     """Distance to the envelope, relative to the bounding-box diagonal, beyond which a part of
     the garment counts as hidden. ``auto`` rejects the envelope when more than

@@ -9,7 +9,9 @@ ruffles are never hit, so they vanish.
 
 When the assumption fails (sleeves, trouser legs, hoods) parts of the garment hide behind the
 envelope far from it; :func:`envelope_error` measures that, and the pipeline's ``auto`` mode
-then keeps the cleaned surface instead.
+then keeps the cleaned surface instead. When there is nothing to collapse (one layer, see
+:func:`covered_fraction`) ``auto`` keeps it too: the envelope would only close armholes and
+slits.
 """
 
 from __future__ import annotations
@@ -217,6 +219,56 @@ def encloses_axis(
     hit = np.zeros((n, ENCLOSE_BINS), bool)
     hit[vert_label[used], sector] = True
     return hit.mean(axis=1) >= ENCLOSE_COVERAGE
+
+
+def covered_fraction(
+    vertices: np.ndarray, faces: np.ndarray, axis: np.ndarray, samples: int = 0, seed: int = 0
+) -> float:
+    """Fraction of the area with more cloth outside it: the share of (sampled) faces whose
+    horizontal ray away from the vertical axis, from the face's centre, meets the garment again.
+
+    A surface star-shaped about the axis (one layer: a dress, a top, a skirt with a slit, however
+    deep its folds) covers none of itself; stacked layers, linings, pleats folded under and the
+    torso under a sleeve are covered, however small the gap between them.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, faces : (F, 3) int, axis : (2,) float (x, z) of the axis
+    samples : faces to test (drawn by area with ``seed``); 0 tests every face
+
+    Returns
+    -------
+    float in [0, 1], area-weighted
+    """
+    import igl.embree
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    if len(f) == 0:
+        return 0.0
+    area = face_areas(v, f)
+    if samples and len(f) > samples:
+        rng = np.random.default_rng(seed)
+        pick = rng.choice(len(f), samples, replace=False)
+        f_test, weight = f[pick], area[pick]
+    else:
+        f_test, weight = f, area
+    centre = v[f_test].mean(axis=1)
+    out = centre - [axis[0], 0.0, axis[1]]
+    out[:, 1] = 0.0
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
+    # Start a hair outside the face so that its own triangle is not the first hit.
+    eps = 1e-5 * diag
+    scene = igl.embree.EmbreeIntersector()
+    scene.init(np.asfortranarray(v, np.float32), np.asfortranarray(f, np.int32), True)
+    o32 = (centre + eps * out).astype(np.float32)
+    d32 = out.astype(np.float32)
+    covered = np.zeros(len(f_test), bool)
+    for k in range(len(f_test)):
+        face, _, _, _ = scene.intersectRay_first(o32[k], d32[k], 0.0, 2 * diag)
+        covered[k] = face >= 0
+    return float(weight[covered].sum() / max(weight.sum(), 1e-300))
 
 
 def envelope_error(

@@ -20,8 +20,10 @@ from core.proxy.atlas import uv_atlas, uv_stats
 from core.proxy.config import (
     AUTO_UNIT_CM_ABOVE,
     AUTO_UNIT_MM_ABOVE,
+    ENVELOPE_CHECK_SAMPLES,
     ENVELOPE_CURTAIN_FRACTION,
     ENVELOPE_HIDDEN_FRACTION,
+    ENVELOPE_MIN_COVERED_FRACTION,
     MIN_DIAGONAL_M,
     UNITS_M,
     ProxyConfig,
@@ -29,6 +31,7 @@ from core.proxy.config import (
 )
 from core.proxy.envelope import (
     cast_radial,
+    covered_fraction,
     encloses_axis,
     envelope_error,
     garment_axis,
@@ -167,9 +170,21 @@ def derive_proxy(
     else:
         pv = pf = None
         inside = around[0]
+        covered = 0.0
         if cfg.layers in ("auto", "envelope") and inside.any():
-            n_env = cfg.envelope_resolution or budget
             sv, sf, _ = compact(cv, cf[inside])
+            covered = covered_fraction(
+                sv, sf, garment_axis(sv, sf), ENVELOPE_CHECK_SAMPLES, seed=cfg.seed
+            )
+            layers["covered_fraction"] = covered
+        if cfg.layers == "auto" and inside.any() and covered < ENVELOPE_MIN_COVERED_FRACTION:
+            notes.append(
+                f"radial envelope not used: {covered:.1%} of the area has cloth outside it, "
+                f"no layers to collapse (needs {ENVELOPE_MIN_COVERED_FRACTION:.0%}). "
+                "Kept the cleaned surface"
+            )
+        elif cfg.layers in ("auto", "envelope") and inside.any():
+            n_env = cfg.envelope_resolution or budget
             ev, ef = radial_envelope(sv, sf, n_env, min_component_fraction=0.0)
             check = envelope_error(sv, sf, ev, ef, cfg.envelope_tolerance * diag)
             err = check["max_m"]
@@ -199,7 +214,7 @@ def derive_proxy(
             if len(ef) and (cfg.layers == "envelope" or fits):
                 rest_v, rest_f, _ = compact(cv, cf[~inside])
                 if len(rest_f) and len(rest_v) > budget // 2:
-                    rest_v, rest_f = decimate(rest_v, rest_f, budget // 2)
+                    rest_v, rest_f = decimate(rest_v, rest_f, budget // 2, uniform=True)
                 pv = np.concatenate([ev, rest_v]) if len(rest_f) else ev
                 pf = np.concatenate([ef, rest_f + len(ev)]) if len(rest_f) else ef
                 layers["used"] = "envelope"
@@ -222,7 +237,7 @@ def derive_proxy(
             pv, pf = cv, cf
             layers["used"] = "keep"
             if len(pv) > 1.5 * budget:
-                pv, pf = decimate(pv, pf, budget)
+                pv, pf = decimate(pv, pf, budget, uniform=True)
     lap("layers")
 
     # smooth

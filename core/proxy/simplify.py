@@ -1,4 +1,4 @@
-"""Fold smoothing (libigl) and decimation to a vertex count (fast-simplification)."""
+"""Fold smoothing (libigl) and decimation to a vertex count (libigl, fast-simplification)."""
 
 from __future__ import annotations
 
@@ -93,29 +93,41 @@ def subdivide_to(
 
 
 def decimate(
-    vertices: np.ndarray, faces: np.ndarray, target: int, *, aggressiveness: float = 7.0
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    target: int,
+    *,
+    aggressiveness: float = 7.0,
+    uniform: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Quadric decimation (fast-simplification) to about ``target`` vertices.
+    """Edge-collapse decimation to about ``target`` vertices, keeping every boundary loop.
 
-    fast-simplification counts faces; the face budget comes from Euler's formula
-    (``F = 2 (V - chi) - B``) and is corrected from the vertex count reached, up to
-    ``DECIMATE_ATTEMPTS`` times, until within ``VERTEX_COUNT_TOLERANCE``. Its collapses never
-    flip a triangle and boundary vertices only collapse along the boundary (with boundary-plane
-    quadrics), so hem and waist loops keep their number and shape. A mesh with fewer vertices
-    than ``target`` is first midpoint-subdivided, which does not move the surface.
+    On an oriented 2-manifold (the garments this stage sees after cleaning) the collapses are
+    libigl's: quadric error (``igl.qslim``) or, with ``uniform``, shortest edge first with
+    midpoint placement (``igl.decimate``, a cheap way to even out a dense mesh before
+    smoothing). Both check the link condition and treat a boundary as edges to a vertex at
+    infinity, so no collapse joins two boundary stretches: a strap one triangle wide, a slit
+    or an armhole keeps its loop. Anything else (non-manifold edges or vertices) goes to
+    fast-simplification's quadric collapses, which never flip a triangle but may join two
+    sides of a thin strip.
+
+    The face budget comes from Euler's formula (``F = 2 (V - chi) - B``) and is corrected from
+    the vertex count reached, up to ``DECIMATE_ATTEMPTS`` times, until within
+    ``VERTEX_COUNT_TOLERANCE``. A mesh with fewer vertices than ``target`` is first
+    midpoint-subdivided, which does not move the surface.
 
     Parameters
     ----------
     vertices : (V, 3) float
     faces : (F, 3) int
     target : int, vertices wanted
+    aggressiveness : fast-simplification's (non-manifold input only)
+    uniform : shortest edge first instead of quadric error (manifold input only)
 
     Returns
     -------
     vertices : (V', 3) float64, faces : (F', 3) int64
     """
-    import fast_simplification
-
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     if len(v) < target:
         v, f = subdivide_to(v, f, target)
@@ -126,16 +138,11 @@ def decimate(
     n_boundary = len(np.unique(edges[counts == 1]))
     b_target = n_boundary * math.sqrt(target / len(v))
     want = max(4, int(round(2 * (target - chi) - b_target)))
+    collapse = _igl_collapse(uniform) if is_oriented_manifold(f) else _fast_collapse(aggressiveness)
     best = None
     for _ in range(DECIMATE_ATTEMPTS):
         want = min(want, len(f) - 1)
-        dv, df = fast_simplification.simplify(
-            np.ascontiguousarray(v, np.float32),
-            np.ascontiguousarray(f, np.int32),
-            target_count=int(want),
-            agg=aggressiveness,
-        )
-        dv, df = _clean(np.asarray(dv, np.float64), np.asarray(df, np.int64))
+        dv, df = _clean(*collapse(v, f, int(want)))
         err = abs(len(dv) - target)
         if best is None or err < abs(len(best[0]) - target):
             best = (dv, df)
@@ -143,6 +150,49 @@ def decimate(
             break
         want = max(4, want + 2 * (target - len(dv)))
     return best
+
+
+def is_oriented_manifold(faces: np.ndarray) -> bool:
+    """Whether ``faces`` (F, 3) int form an oriented 2-manifold, possibly with boundary: every
+    edge in one or two faces (used once each way), every boundary vertex on two boundary edges."""
+    f = np.asarray(faces, np.int64)
+    if len(f) == 0:
+        return False
+    edges, counts = edge_counts(f)
+    if counts.max() > 2:
+        return False
+    directed = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    n = int(f.max()) + 1
+    if len(np.unique(directed[:, 0] * n + directed[:, 1])) != len(directed):
+        return False
+    b = edges[counts == 1].ravel()
+    return len(b) == 0 or int(np.bincount(b).max()) <= 2
+
+
+def _igl_collapse(uniform: bool):
+    def run(v: np.ndarray, f: np.ndarray, faces_wanted: int):
+        import igl
+
+        fn = igl.decimate if uniform else igl.qslim
+        out = fn(np.asfortranarray(v, np.float64), np.asfortranarray(f, np.int32), faces_wanted)
+        return np.asarray(out[-4], np.float64), np.asarray(out[-3], np.int64)
+
+    return run
+
+
+def _fast_collapse(aggressiveness: float):
+    def run(v: np.ndarray, f: np.ndarray, faces_wanted: int):
+        import fast_simplification
+
+        dv, df = fast_simplification.simplify(
+            np.ascontiguousarray(v, np.float32),
+            np.ascontiguousarray(f, np.int32),
+            target_count=faces_wanted,
+            agg=aggressiveness,
+        )
+        return np.asarray(dv, np.float64), np.asarray(df, np.int64)
+
+    return run
 
 
 def _clean(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

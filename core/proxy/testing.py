@@ -224,3 +224,34 @@ def tshirt(
             seams.append([torso[j], ring[(i + 1) % n_around], ring[i]])
         f = np.concatenate([f, np.array(seams, np.int64)])
     return v, f
+
+
+def split_uv_seams(
+    vertices: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A garment as a pattern-making tool exports it with UVs: a front and a back piece, each
+    its own UV chart, so every vertex on a seam between them is written twice (same position,
+    two UVs) and the file's mesh is cut open along the seams.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, faces : (F, 3) int
+        The welded garment (Y up, front towards +Z).
+
+    Returns
+    -------
+    vertices : (V', 3) float64, V' > V; faces : (F, 3) int64; uvs : (V', 2) float64 in [0, 1]
+        Front piece on the left half of the texture, back piece on the right half.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    piece = (v[f].mean(axis=1)[:, 2] < np.median(v[:, 2])).astype(np.int64)  # 0 front, 1 back
+    key = f * 2 + piece[:, None]
+    uniq, inverse = np.unique(key.ravel(), return_inverse=True)
+    src, side = uniq // 2, uniq % 2
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    span = max(hi[0] - lo[0], hi[1] - lo[1], 1e-12)
+    u = (v[src, 0] - lo[0]) / span
+    u = np.where(side == 0, u, 1.0 - u)  # the back piece seen from behind
+    uvs = np.stack([0.5 * side + 0.49 * u, (v[src, 1] - lo[1]) / span], axis=1)
+    return v[src], inverse.reshape(-1, 3).astype(np.int64), uvs

@@ -12,6 +12,15 @@ Detailed targets (what the neural renderer learns to draw):
 * ``dress``: bodice and flared skirt in one piece with shoulder straps, a sash and a bow;
   ``dress``, ``straps`` (2 pieces), ``sash``, ``bow`` (loops, knot and tails: 5 pieces).
 
+Single-layer garments, each one connected piece of cloth with the openings of a real one (what
+a pattern-making tool exports once its seams are welded; see :mod:`.tops`):
+
+* ``tank-top``: scoop neckline, 5 cm straps, armholes (4 boundary loops).
+* ``t-shirt``: neckline and short sleeves sewn into the armholes (4 loops: hem, neck, cuffs).
+* ``sleeveless-dress``: a dress with armholes, its bodice and flared, folded skirt in one piece.
+* ``slip-dress``: 1 cm spaghetti straps, low back.
+* ``slit-skirt``: a single layer with a front slit and no waistband (2 loops).
+
 Coarse templates (stand-in proxies, one clean open surface each, a few thousand vertices):
 ``long-skirt``, ``short-skirt``, ``simple-dress``.
 
@@ -35,6 +44,7 @@ from .dress import DressConfig, build_dress
 from .fit import BodyFit, body_fit, body_mesh
 from .skirts import PleatConfig, SkirtConfig, build_layered_skirt, build_pleated_skirt
 from .surface import Garment, Part, assemble
+from .tops import TopConfig, build_top
 
 __all__ = [
     "DEFAULT_TARGET",
@@ -44,6 +54,7 @@ __all__ = [
     "GarmentSpec",
     "PleatConfig",
     "SkirtConfig",
+    "TopConfig",
     "body_fit",
     "body_mesh",
     "build_garment",
@@ -63,7 +74,7 @@ class GarmentSpec:
     """One line for ``dng garment list``."""
     config: Any
     """The family's config dataclass (:class:`SkirtConfig`, :class:`PleatConfig`,
-    :class:`DressConfig`)."""
+    :class:`DressConfig`, :class:`TopConfig`)."""
     build: Callable[[Any, float, BodyFit, int], list[Part]]
     """``build(config, resolution_m, fit, seed) -> parts``."""
     resolution_mm: float
@@ -162,6 +173,84 @@ GARMENTS: dict[str, GarmentSpec] = {
             build_dress,
             9.0,
             (6.5, 22.0),
+        ),
+        GarmentSpec(
+            "tank-top",
+            "detailed",
+            "single layer: scoop neckline, 5 cm straps, armholes",
+            TopConfig(),
+            build_top,
+            5.0,
+            (3.0, 10.0),
+        ),
+        GarmentSpec(
+            "t-shirt",
+            "detailed",
+            "single layer: neckline, short sleeves sewn into the armholes",
+            TopConfig(
+                hem=0.56,
+                strap_x=0.32,
+                strap_width=0.095,
+                neckline_front=0.06,
+                neckline_back=0.02,
+                armhole=0.73,
+                sleeve=0.2,
+            ),
+            build_top,
+            6.0,
+            (4.0, 13.0),
+        ),
+        GarmentSpec(
+            "sleeveless-dress",
+            "detailed",
+            "single layer: dress with armholes, flared folded skirt",
+            TopConfig(
+                hem=0.28,
+                flare=0.14,
+                folds=14,
+                fold_depth=0.035,
+                strap_width=0.06,
+                neckline_front=0.07,
+            ),
+            build_top,
+            9.0,
+            (5.5, 18.0),
+        ),
+        GarmentSpec(
+            "slip-dress",
+            "detailed",
+            "single layer: 1 cm spaghetti straps, low back",
+            TopConfig(
+                hem=0.35,
+                flare=0.1,
+                folds=10,
+                fold_depth=0.02,
+                strap_width=0.01,
+                strap_x=0.27,
+                neckline_front=0.04,
+                neckline_back=0.1,
+            ),
+            build_top,
+            7.0,
+            (4.5, 15.0),
+        ),
+        GarmentSpec(
+            "slit-skirt",
+            "detailed",
+            "single layer: front slit, no waistband",
+            SkirtConfig(
+                top=0.60,
+                hems=(0.30,),
+                flares=(0.07,),
+                folds=(14,),
+                fold_depths=(0.02,),
+                slit_top=0.44,
+                slit_angle=0.35,
+                slit_opening=0.06,
+            ),
+            build_layered_skirt,
+            7.0,
+            (4.0, 13.0),
         ),
         GarmentSpec(
             "long-skirt",
