@@ -27,10 +27,10 @@ def run_watched(
     """Run ``command`` with stdout and stderr into ``log_path``; return its exit status.
 
     Past ``timeout_s`` it has hung: the threads of the process (name, state, CPU seconds, from
-    /proc), the Python stack of every thread (the process is sent SIGUSR1 and must have
-    registered ``faulthandler`` for it: without that SIGUSR1 ends it), the newest files in
-    ``watch_dir`` and the tail of the log are written beside the log (``NAME.hang.txt``) and
-    the test fails with them; the process is killed.
+    /proc), their native stacks (gdb), the Python stack of every thread (the process is sent
+    SIGUSR1 and must have registered ``faulthandler`` for it: without that SIGUSR1 ends it), the
+    newest files in ``watch_dir`` and the tail of the log are written beside the log
+    (``NAME.hang.txt``) and the test fails with them; the process is killed.
     """
     log_path = Path(log_path)
     with open(log_path, "wb") as log:
@@ -51,6 +51,7 @@ def run_watched(
 def _hang_report(proc: subprocess.Popen, timeout_s: float, log_path: Path, watch_dir) -> str:
     """What a hung process was doing, in words (see :func:`run_watched`)."""
     threads = thread_states(proc.pid)
+    native = native_stacks(proc.pid)
     before = log_path.stat().st_size
     proc.send_signal(signal.SIGUSR1)
     deadline = time.monotonic() + STACK_WAIT_S
@@ -75,6 +76,7 @@ def _hang_report(proc: subprocess.Popen, timeout_s: float, log_path: Path, watch
         parts.append(f"newest files in {watch_dir}:\n" + newest_files(Path(watch_dir)))
     parts.append("log tail:\n" + head[-LOG_TAIL:])
     parts.append("Python stacks (SIGUSR1):\n" + stacks)
+    parts.append("native stacks (gdb):\n" + native)
     return "\n\n".join(parts)
 
 
@@ -103,6 +105,18 @@ def thread_states(pid: int, limit: int = 25) -> str:
     if len(rows) > limit:
         lines.append(f"  ... {len(rows) - limit} more")
     return "\n".join(lines) or "(none)"
+
+
+def native_stacks(pid: int, frames: int = 15) -> str:
+    """The native stack of every thread of process ``pid`` (gdb attaches, prints, detaches;
+    ./studio installs gdb for the tests)."""
+    command = ["gdb", "-p", str(pid), "-batch", "-nx", "-ex", f"thread apply all bt {frames}"]
+    try:
+        r = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"(gdb failed: {exc})"
+    lines = [line for line in r.stdout.splitlines() if line.startswith(("Thread ", "#", "("))]
+    return "\n".join(lines) or f"(gdb printed no stack: {r.stderr.strip()[-500:]})"
 
 
 def newest_files(folder: Path, limit: int = 5) -> str:

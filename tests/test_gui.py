@@ -211,8 +211,9 @@ TOUR_TIMEOUT_S = 300
 
 
 def test_a_hung_command_fails_with_its_stacks(tmp_path):
-    """The watchdog the tour runs under: a hang fails at once, with the Python stack of every
-    thread, the thread table, the log's tail and the newest files (no second try)."""
+    """The watchdog the tour runs under: a hang fails at once, with the stack of every
+    thread (Python and native), the thread table, the log's tail and the newest files (no
+    second try)."""
     (tmp_path / "step-1.png").write_bytes(b"x")
     code = (
         "import faulthandler, signal, sys, threading, time\n"
@@ -231,6 +232,8 @@ def test_a_hung_command_fails_with_its_stacks(tmp_path):
     assert message.count("in frozen_step") == 2  # both threads' stacks
     assert "step-1.png" in message  # the newest file
     assert "python" in message.split("busiest first:")[1].split("\n")[1]  # a thread row
+    native = message.split("native stacks (gdb):")[1]
+    assert "Thread " in native and "#0 " in native, native
     assert (tmp_path / "log.txt.hang.txt").read_text() in message
 
 
