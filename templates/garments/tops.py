@@ -138,6 +138,8 @@ def build_top(cfg: TopConfig, res: float, fit: BodyFit, seed: int) -> list[Part]
     if cfg.sleeve > 0:
         for side in (1.0, -1.0):
             vertices, faces = _add_sleeve(cfg, fit, res, vertices, faces, side)
+    # Heavy arms reach the torso's cloth under the armholes: keep the clearance there too.
+    vertices = _push_out(vertices, _body_scene(fit), cfg.clearance)
     name = "dress" if cfg.hem < 0.45 else "top"
     return [Part(name, vertices, faces)]
 
