@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.constants import DEGENERATE_AREA_M2, MERGE_TOLERANCE_M
+from core.constants import DEGENERATE_AREA_M2, MERGE_TOLERANCE_M, WELD_TOLERANCE_REL
 from core.errors import InputError
 from core.fileio import atomic_path
 
@@ -132,13 +132,8 @@ def validate_mesh(
     key = np.round(v / MERGE_TOLERANCE_M).astype(np.int64)
     if uvs is not None:
         key = np.concatenate([key, np.round(uvs * 1e6).astype(np.int64)], axis=1)
-    # Keep vertex order (first occurrence wins) so same-topology files stay in correspondence.
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first)
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    first = first[order]
-    inverse = rank[inverse.reshape(-1)]
+    _, inverse = np.unique(key, axis=0, return_inverse=True)
+    first, inverse = _first_occurrence(inverse.reshape(-1))
     merged = len(v) - len(first)
     v, f = v[first], inverse[f]
     uvs = None if uvs is None else uvs[first]
@@ -183,6 +178,68 @@ def validate_mesh(
         notes=notes,
     )
     return mesh, report
+
+
+def _first_occurrence(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Renumber group ``labels`` (V,) int in order of each group's first vertex, so merged
+    vertices keep the file's order (same-topology files stay in correspondence).
+
+    Returns ``first`` (W,) int64, the first vertex of each group, and ``inverse`` (V,) int64,
+    each vertex's group.
+    """
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order].astype(np.int64), rank[inverse.reshape(-1)].astype(np.int64)
+
+
+def weld(
+    vertices: np.ndarray, faces: np.ndarray, tolerance: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Join coincident vertices, whatever their UVs: a mesh whose UV seams are split into
+    separate vertices becomes one connected cloth (what cloth tools do on import).
+
+    Vertices within ``tolerance`` metres of each other (chained) become one, placed at the
+    first of them; the welded vertices keep the order of their first occurrence. Faces that
+    collapse (two corners welded together) are dropped. A simulation of the welded mesh maps
+    back to the file's vertices as ``positions[..., index, :]``.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    faces : (F, 3) int
+    tolerance : metres; default ``WELD_TOLERANCE_REL`` times the bounding-box diagonal
+
+    Returns
+    -------
+    welded : (W, 3) float32, W <= V
+    welded_faces : (F', 3) int64, indices into ``welded``
+    index : (V,) int64, the welded vertex of each input vertex
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or not len(v) or not np.isfinite(v).all():
+        raise ValueError(f"vertices must be finite (V, 3), got {v.shape}")
+    if tolerance is None:
+        tolerance = WELD_TOLERANCE_REL * float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    pairs = cKDTree(v).query_pairs(max(tolerance, 0.0), output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(v),) * 2)
+    _, labels = connected_components(graph, directed=False)
+    first, index = _first_occurrence(labels)
+    wf = index[f]
+    keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2])
+    return v[first].astype(np.float32), wf[keep], index
+
+
+def weld_mesh(mesh: Mesh) -> tuple[Mesh, np.ndarray]:
+    """:func:`weld` on a :class:`Mesh`: the welded mesh (no UVs) and ``index`` (V,) int64."""
+    v, f, index = weld(mesh.vertices, mesh.faces)
+    return Mesh(v, f), index
 
 
 def count_components(num_vertices: int, faces: np.ndarray) -> int:

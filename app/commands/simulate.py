@@ -113,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     from core.body.shape import BodyShape
     from core.errors import InputError
     from core.fileio import write_json
-    from core.sim.cache import export_cache, import_cache, save_cache
+    from core.mesh import weld_mesh
+    from core.sim.cache import export_cache, import_cache, save_cache, unweld_cache
     from core.sim.config import SimConfig
 
     out = Path(args.out)
@@ -167,15 +168,21 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
 
     # Keep stdout for the JSON report: warp/newton print kernel-build notes.
+    # A file's UV seams are split vertices: weld them so the cloth is one piece, and map the
+    # result back so the cache has the file's vertices in the file's order.
+    welded, index = weld_mesh(garment)
     with contextlib.redirect_stdout(sys.stderr if args.json else sys.stdout):
-        cache, report = simulate(garment, motion, shape, config, path=gpath, progress=progress)
+        cache, report = simulate(welded, motion, shape, config, path=gpath, progress=progress)
+    if welded.num_vertices != garment.num_vertices:
+        cache = unweld_cache(cache, index, garment.faces)
     save_cache(out, cache)
     for extra in args.export:
         export_cache(extra, cache)
     data = report.as_dict()
     data.update(
         cache=str(out), garment=args.garment, motion=motion.name, fabric=config.fabric,
-        fps=motion.fps, body_shape=shape.as_dict(),
+        fps=motion.fps, body_shape=shape.as_dict(), vertices=cache.num_vertices,
+        welded_vertices=welded.num_vertices,
     )  # fmt: skip
     if args.body_check:
         data["body_mesh_penetration"] = _body_check(cache, motion, shape)
@@ -191,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(data, indent=2))
     else:
         print(
-            f"{out}: {report.frames} frames x {report.vertices} vertices, "
+            f"{out}: {report.frames} frames x {cache.num_vertices} vertices "
+            f"({welded.num_vertices} welded), "
             f"{report.ms_per_frame:.0f} ms/frame on {report.device}, "
             f"strain max {report.strain_max:.3f} (limit {report.strain_limit}), "
             f"penetration mean {report.penetration_mean_mm:.3f} mm, "

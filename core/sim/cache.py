@@ -79,6 +79,32 @@ class SimCache:
         return self.positions.shape[1]
 
 
+def unweld_cache(cache: SimCache, index: np.ndarray, faces: np.ndarray) -> SimCache:
+    """A cache of a welded mesh (:func:`core.mesh.weld`) mapped back to the split vertices.
+
+    Parameters
+    ----------
+    cache : positions (T, W, 3) of the welded mesh
+    index : (V,) int, the welded vertex of each split vertex
+    faces : (F, 3) int, the split mesh's faces
+
+    Returns
+    -------
+    SimCache with positions (T, V, 3) in the split mesh's vertex order; ``pinned_indices``
+    (when present) name every split vertex of a pinned welded vertex.
+    """
+    index = np.asarray(index, np.int64)
+    params = dict(cache.params)
+    if "pinned_indices" in params:
+        pinned = np.isin(index, np.asarray(params["pinned_indices"], np.int64))
+        params["pinned_indices"] = np.flatnonzero(pinned).tolist()
+    params["welded_vertices"] = cache.num_vertices
+    return SimCache(
+        np.ascontiguousarray(cache.positions[:, index]), np.asarray(faces, np.int64), cache.fps,
+        params,
+    )  # fmt: skip
+
+
 def _checked(positions: np.ndarray, faces: np.ndarray, fps: float, params: dict, path) -> SimCache:
     positions = np.asarray(positions)
     faces = np.asarray(faces)
