@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 #: Where Debian's assimp-testmodels puts its BVH files (the test setup installs the package).
 CMU_BVH_DIR = Path("/usr/share/assimp/models/BVH")
@@ -14,13 +15,7 @@ CMU_BVH_DIR = Path("/usr/share/assimp/models/BVH")
 
 def pytest_collection_modifyitems(config, items):
     """Skip ``gpu`` tests without CUDA and ``gui`` tests without a display."""
-    has_gpu = False
-    try:
-        import torch
-
-        has_gpu = torch.cuda.is_available()
-    except ImportError:
-        pass
+    has_gpu = torch.cuda.is_available()
     for item in items:
         if "gpu" in item.keywords and not has_gpu:
             item.add_marker(pytest.mark.skip(reason="no CUDA GPU on this machine"))
@@ -74,8 +69,6 @@ def smoke_project(tmp_path_factory, bvh_dir) -> Path:
     """A project made by the ``smoke`` preset of ``dng demo`` (every stage, the neural renderer
     and the evaluation included), shared by the whole session: treat it as read-only (write
     only into subfolders of your own, like ``finetune/NAME``)."""
-    import torch
-
     from training.demo import run_demo
     from training.pipeline import PRESETS
 

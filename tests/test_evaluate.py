@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 
@@ -89,40 +90,40 @@ def test_fid_needs_weights_and_uses_them(tmp_path):
     assert on["video_fid"]["value"] is not None
 
 
+def _copy(project, tmp_path):
+    """A private copy of the shared smoke project (tests that write into it work on this)."""
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy, ignore=shutil.ignore_patterns("finetune", "ablations"))
+    return copy
+
+
 def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
+    project = _copy(smoke_project, tmp_path)  # a stage is rerun below: not the shared one
     dng = [sys.executable, "-m", "app.cli"]
-    r = subprocess.run(dng + ["eval", str(smoke_project)], capture_output=True, text=True)
+    r = subprocess.run(dng + ["eval", str(project)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     for name in ("ours", "ours (simulated proxy)", "pix2pix", "dnr", "dnr-gan"):
         assert name in r.stdout
-    report = json.loads((smoke_project / "eval" / "report.json").read_text())
+    report = json.loads((project / "eval" / "report.json").read_text())
     assert report["test_motions"] == ["twirl", "cmu-01_01"]
     for name, m in report["methods"].items():
         assert m["mse"]["n"] > 0 and 0 <= m["mse"]["mean"] <= 1, name
         assert 0 < m["ssim"]["mean"] <= 1 and m["flicker"]["n"] > 0, name
     assert report["mse_ratio_ours_to_dnr"] > 0
-    assert (smoke_project / "eval" / "compare-twirl.png").stat().st_size > 1000
+    assert (project / "eval" / "compare-twirl.png").stat().st_size > 1000
     # --json: stdout is the report alone (progress on stderr), even when stages rerun.
-    (smoke_project / "eval" / "stage.json").unlink()
-    r = subprocess.run(dng + ["eval", str(smoke_project), "--json"], capture_output=True, text=True)
+    (project / "eval" / "stage.json").unlink()
+    r = subprocess.run(dng + ["eval", str(project), "--json"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["methods"].keys() == report["methods"].keys()
     assert "evaluating twirl" in r.stderr
     missing = tmp_path / "nope.pth"
     r = subprocess.run(
-        dng + ["eval", str(smoke_project), "--inception", str(missing)],
+        dng + ["eval", str(project), "--inception", str(missing)],
         capture_output=True,
         text=True,
     )
     assert r.returncode == 2 and "nope.pth" in r.stderr and r.stderr.count("\n") == 1
-
-
-def _copy(project, tmp_path):
-    import shutil
-
-    copy = tmp_path / "project"
-    shutil.copytree(project, copy, ignore=shutil.ignore_patterns("finetune", "ablations"))
-    return copy
 
 
 def test_ablations_train_and_join_the_table(smoke_project, tmp_path):

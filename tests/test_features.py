@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from core.camera import make_camera, pixel_rays
 from core.errors import InputError
@@ -201,7 +202,6 @@ def test_non_finite_inputs_raise():
 
 
 def test_torch_versions_match_numpy(rng):
-    torch = pytest.importorskip("torch")
     v, f = open_skirt()
     window = (rng.uniform(-0.3, 0.3, (5, 19, 3)) + [0, 1, 0]).astype(np.float32)
     feats = vertex_motion_features(v, window, 0.1)

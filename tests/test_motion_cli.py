@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -11,11 +10,9 @@ import pytest
 
 from core.motion.bvh import write_bvh
 from core.motion.load import load_motion
+from core.motion.procedural import PROCEDURAL_KINDS
 from core.skeleton import CANONICAL_JOINTS
 from tests.data_bvh import cmu_as, tiny_bvh_text
-
-HAS_PROCEDURAL = importlib.util.find_spec("core.motion.procedural") is not None
-HAS_RETARGET = importlib.util.find_spec("core.motion.retarget") is not None
 
 
 @pytest.fixture(scope="module")
@@ -187,10 +184,7 @@ def test_unknown_rig_lists_every_missing_joint(dng, tmp_path):
 # ------------------------------------------------------------------------- make, retarget
 
 
-@pytest.mark.skipif(not HAS_PROCEDURAL, reason="core.motion.procedural not written yet")
 def test_make_writes_a_loadable_clip(dng, tmp_path):
-    from core.motion.procedural import PROCEDURAL_KINDS
-
     kind = PROCEDURAL_KINDS[0]
     a, b = tmp_path / "a.bvh", tmp_path / "b.bvh"
     for out in (a, b):
@@ -204,7 +198,6 @@ def test_make_writes_a_loadable_clip(dng, tmp_path):
     assert m.meta["standing_height_m"] == pytest.approx(1.8, rel=0.05)
 
 
-@pytest.mark.skipif(not HAS_PROCEDURAL, reason="core.motion.procedural not written yet")
 @pytest.mark.parametrize(
     "argv, problem",
     [
@@ -214,8 +207,6 @@ def test_make_writes_a_loadable_clip(dng, tmp_path):
     ],
 )
 def test_make_bad_arguments(dng, tmp_path, argv, problem):
-    from core.motion.procedural import PROCEDURAL_KINDS
-
     argv = [PROCEDURAL_KINDS[0] if a == "KIND" else a for a in argv]
     out = tmp_path / "m.bvh"
     code, _, err = dng("motion", "make", *argv, "--out", out)
@@ -223,7 +214,6 @@ def test_make_bad_arguments(dng, tmp_path, argv, problem):
     assert not out.exists()
 
 
-@pytest.mark.skipif(not HAS_RETARGET, reason="core.motion.retarget not written yet")
 def test_retarget_cmu_onto_the_mannequin(dng, tmp_path, cmu_short):
     out = tmp_path / "r.bvh"
     code, stdout, err = dng("motion", "retarget", cmu_short, "--out", out, "--fps", 30,
@@ -236,7 +226,6 @@ def test_retarget_cmu_onto_the_mannequin(dng, tmp_path, cmu_short):
     assert "wrote" in stdout
 
 
-@pytest.mark.skipif(not HAS_RETARGET, reason="core.motion.retarget not written yet")
 def test_retarget_z_up_biped_lands_upright(dng, tmp_path, converted):
     out = tmp_path / "r.bvh"
     code, _, err = dng("motion", "retarget", converted["biped"], "--out", out)

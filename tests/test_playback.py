@@ -3,6 +3,7 @@ frame writers."""
 
 from __future__ import annotations
 
+import imageio_ffmpeg
 import numpy as np
 import pytest
 import torch
@@ -250,7 +251,6 @@ def test_writer_gif_and_mp4(tmp_path):
             w.append(f)
     with Image.open(tmp_path / "a.gif") as g:
         assert g.n_frames == 4 and g.size == (21, 15)
-    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
     with FrameWriter(tmp_path / "a.mp4", fps=12) as w:
         for f in _frames(5):
             w.append(f)

@@ -84,9 +84,6 @@ def test_cli_bench_proxy_writes_table_and_plot(tmp_path, capsys):
 
 
 def test_cli_proxy_with_builtin_template(tmp_path, capsys):
-    import pytest
-
-    pytest.importorskip("templates.garments")
     from app.cli import main
     from templates.garments import make_garment
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import imageio_ffmpeg
 import numpy as np
 import pytest
 import torch
@@ -40,7 +41,6 @@ def test_render_gif_png_mp4(smoke_project, tmp_path, dng):
     assert first.shape == (64, 128, 3)  # render | simulation
     assert "simulation" in out
 
-    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
     code, out, err = dng(
         "render", smoke_project, "--motion", "twirl", *RENDER,
         "--fps", 12, "--out", tmp_path / "a.mp4",

@@ -8,6 +8,8 @@ import pytest
 
 from core.body.shape import _PARENT, MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
 from core.errors import InputError
+from core.motion.load import load_motion
+from core.motion.mapping import canonical_positions
 from core.motion.procedural import make_motion
 from core.motion.retarget import (
     DEFAULT_SHAPE,
@@ -267,11 +269,9 @@ def test_smooth_in_time_through_straight_and_hyperextended_limbs():
 
 
 def test_real_motion_capture(bvh_dir):
-    """CMU 01_01 through the loader and joint mapping (skipped until those exist)."""
-    load = pytest.importorskip("core.motion.load")
-    mapping = pytest.importorskip("core.motion.mapping")
-    clip = load.load_motion(bvh_dir / "01_01.bvh", fps=30.0)
-    src = mapping.canonical_positions(clip).astype(np.float64)
+    """CMU 01_01 through the loader and joint mapping."""
+    clip = load_motion(bvh_dir / "01_01.bvh", fps=30.0)
+    src = canonical_positions(clip).astype(np.float64)
     m = retarget(src, clip.fps, name="01_01")
     pos, rot = check_invariants(m)
     names = MANNEQUIN_JOINTS

@@ -12,8 +12,6 @@ from core.sim.config import SimConfig
 from core.sim.simulate import simulate
 from tests.sim_helpers import frustum_skirt
 
-pytest.importorskip("newton")
-
 CASES = {
     "twirl-24fps-silk": ("twirl", 24.0, "silk", BodyShape()),
     "jump-120fps-denim": ("jump", 120.0, "denim", BodyShape()),

@@ -19,8 +19,6 @@ from core.sim.simulate import SimulationError, edge_strain, simulate, unique_edg
 from core.skeleton import rotation_about
 from tests.sim_helpers import frustum_skirt, spin_motion
 
-pytest.importorskip("newton")
-
 #: Fast settings for tests: short lead-in, few steps.
 FAST = SimConfig(substeps=2, iterations=4, transition_s=0.2, settle_s=0.2)
 
