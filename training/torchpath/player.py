@@ -33,6 +33,7 @@ import torch
 from core.camera import Camera, intrinsics_from_fov, look_at, orbit_eye
 from core.errors import InputError
 from core.features import interpolate_torch, vertex_motion_features_torch
+from core.shading import ShadingConfig
 from training.joint2coarse.descriptor import motion_descriptors, tilt_rotvecs
 from training.joint2coarse.model import net_from_payload
 from training.renderer.config import RendererConfig
@@ -221,7 +222,7 @@ class TorchPlayer:
             return render_background(body, self.body_faces, camera)
         key = ("body", camera.width, camera.height, len(body))
         if key not in self._capacity:
-            n = pair_count(body, self.body_faces, camera.scaled(3))
+            n = pair_count(body, self.body_faces, camera.scaled(ShadingConfig().supersample))
             self._capacity[key] = int(CAPACITY_SLACK * n) + 4096
         # The supersampled rasterization happens inside; its overflow is not tracked here.
         return render_background(body, self.body_faces, camera, capacity=self._capacity[key])
