@@ -9,7 +9,7 @@ fresh machine would not have it.
 
 Found by reading the code (``ast``): ``subprocess.run/Popen/call/check_call/check_output``
 and ``asyncio.create_subprocess_exec`` with a literal program (a list or tuple, a string, a name
-bound to one in the same file, or ``a + b`` with such a list first), ``os.system``,
+bound to one in the enclosing scopes, or ``a + b`` with such a list first), ``os.system``,
 ``os.popen``, ``subprocess.getoutput`` (the first word of the command), ``os.exec*``,
 ``os.spawn*``, ``os.posix_spawn*`` and ``shutil.which``. A program name built at run time is
 not seen.
@@ -57,32 +57,69 @@ _SPAWN = {f"os.spawn{s}" for s in ("l", "le", "lp", "lpe", "v", "ve", "vp", "vpe
 def programs_in_source(source: str) -> list[tuple[str, int]]:
     """The outside programs that Python ``source`` runs: ``(name, line)`` pairs, in order."""
     tree = ast.parse(source)
-    aliases = _import_aliases(tree)
-    bound = _literal_bindings(tree)
-    found = []
-    for node in ast.walk(tree):
-        if not isinstance(node, ast.Call):
-            continue
-        name = _dotted(node.func, aliases)
-        if name in _RUN or name in _SHELL or name in _PROGRAM:
-            arg = node.args[0] if node.args else _keyword(node, ("args", "cmd", "command"))
-        elif name in _SPAWN:
-            arg = node.args[1] if len(node.args) > 1 else None
-        else:
-            continue
-        value = _literal(arg, bound)
-        if isinstance(value, (list, tuple)):
-            program = value[0] if value and isinstance(value[0], str) else None
-        elif isinstance(value, str) and name in _PROGRAM | _SPAWN:
-            program = value
-        elif isinstance(value, str):  # a command line
-            words = shlex.split(value, posix=True) if value.strip() else []
-            program = words[0] if words else None
-        else:
-            program = None
-        if program:
-            found.append((program, node.lineno))
+    found: list[tuple[str, int]] = []
+    _scan_scope(tree, {}, _import_aliases(tree), found)
     return sorted(found, key=lambda p: p[1])
+
+
+_FUNCTIONS = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
+
+
+def _scan_scope(scope: ast.AST, outer: dict, aliases: dict[str, str], found: list) -> None:
+    """Add the programs run in ``scope`` (a module or a function) and in the functions inside
+    it to ``found``. Names resolve as Python does: the function's own assignments and
+    parameters (unknown) first, then the enclosing scopes'."""
+    nodes = list(_scope_nodes(scope))
+    bound = dict(outer)
+    if isinstance(scope, _FUNCTIONS):
+        a = scope.args
+        for arg in [*a.posonlyargs, *a.args, *a.kwonlyargs, a.vararg, a.kwarg]:
+            if arg is not None:
+                bound[arg.arg] = None
+    for node in nodes:
+        if isinstance(node, (ast.Assign, ast.AnnAssign)) and node.value is not None:
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for target in targets:
+                if isinstance(target, ast.Name):
+                    literal = isinstance(node.value, (ast.List, ast.Tuple, ast.Constant))
+                    bound[target.id] = node.value if literal and len(targets) == 1 else None
+    for node in nodes:
+        if isinstance(node, _FUNCTIONS) and node is not scope:
+            _scan_scope(node, bound, aliases, found)
+        elif isinstance(node, ast.Call):
+            program = _program_of_call(node, bound, aliases)
+            if program:
+                found.append((program, node.lineno))
+
+
+def _scope_nodes(scope: ast.AST):
+    """The nodes of ``scope`` itself: nested functions are yielded but not entered."""
+    todo = list(ast.iter_child_nodes(scope))
+    while todo:
+        node = todo.pop()
+        yield node
+        if not isinstance(node, _FUNCTIONS):
+            todo += ast.iter_child_nodes(node)
+
+
+def _program_of_call(node: ast.Call, bound: dict, aliases: dict[str, str]) -> str | None:
+    """The program that the call ``node`` runs, when it runs one and its name is literal."""
+    name = _dotted(node.func, aliases)
+    if name in _RUN or name in _SHELL or name in _PROGRAM:
+        arg = node.args[0] if node.args else _keyword(node, ("args", "cmd", "command"))
+    elif name in _SPAWN:
+        arg = node.args[1] if len(node.args) > 1 else None
+    else:
+        return None
+    value = _literal(arg, bound)
+    if isinstance(value, (list, tuple)):
+        return value[0] if value and isinstance(value[0], str) else None
+    if isinstance(value, str) and name in _PROGRAM | _SPAWN:
+        return value
+    if isinstance(value, str):  # a command line
+        words = shlex.split(value, posix=True) if value.strip() else []
+        return words[0] if words else None
+    return None
 
 
 def _import_aliases(tree: ast.Module) -> dict[str, str]:
@@ -111,26 +148,11 @@ def _dotted(func: ast.expr, aliases: dict[str, str]) -> str | None:
     return ".".join(reversed(parts))
 
 
-def _literal_bindings(tree: ast.Module) -> dict[str, ast.expr]:
-    """Names assigned a list, tuple or string literal anywhere in the file (last one wins)."""
-    bound = {}
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Assign) and len(node.targets) == 1:
-            target, value = node.targets[0], node.value
-        elif isinstance(node, ast.AnnAssign) and node.value is not None:
-            target, value = node.target, node.value
-        else:
-            continue
-        if isinstance(target, ast.Name) and isinstance(value, (ast.List, ast.Tuple, ast.Constant)):
-            bound[target.id] = value
-    return bound
-
-
 def _keyword(call: ast.Call, names: tuple[str, ...]) -> ast.expr | None:
     return next((k.value for k in call.keywords if k.arg in names), None)
 
 
-def _literal(node: ast.expr | None, bound: dict[str, ast.expr], depth: int = 0):
+def _literal(node: ast.expr | None, bound: dict[str, ast.expr | None], depth: int = 0):
     """The literal value of ``node`` as far as it is known: a str, a list (its known first
     items; None where unknown) or None."""
     if node is None or depth > 5:
@@ -142,8 +164,8 @@ def _literal(node: ast.expr | None, bound: dict[str, ast.expr], depth: int = 0):
             None if isinstance(e, ast.Starred) else _literal(e, bound, depth + 1)
             for e in node.elts[:1]
         ]
-    if isinstance(node, ast.Name) and node.id in bound:
-        return _literal(bound[node.id], bound, depth + 1)
+    if isinstance(node, ast.Name):
+        return _literal(bound.get(node.id), bound, depth + 1)
     if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
         return _literal(node.left, bound, depth + 1)
     return None
@@ -276,11 +298,16 @@ os.spawnlp(os.P_WAIT, "scrot", "scrot")
 subprocess.run(args=["xclip"])
 subprocess.run([sys.executable, "-m", "app.cli"])
 subprocess.run(command)
+def run(TOOL):
+    subprocess.run(TOOL)
+def convert_all():
+    TOOL = ["magick"]
+    subprocess.run(TOOL)
 """
     found = programs_in_source(source)
     assert [name for name, _ in found] == [
         "import", "ffmpeg", "identify", "convert", "xdotool", "gnome-screenshot", "xwd",
-        "scrot", "xclip",
+        "scrot", "xclip", "magick",
     ]  # fmt: skip
     assert found[0][1] == 6
 
