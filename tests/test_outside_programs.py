@@ -2,9 +2,9 @@
 
 A program counts as installed when it is found on PATH and comes from the project's .venv, or
 from a Debian package that ``./studio`` installs (its ``DEBIAN_*`` lists and what they depend
-on), or from one of Debian's essential packages (on every Debian system: coreutils, bash, dpkg...),
-or is one of a few base-system programs (:data:`BASE_PROGRAMS`). A program installed by
-hand (``/usr/local/bin``) or by a package that ``./studio`` does not name fails the test: a
+on), or from one of Debian's essential packages (on every Debian system: coreutils, bash,
+dpkg...), or is one of a few base-system programs (:data:`BASE_PROGRAMS`). A program installed
+by hand (``/usr/local/bin``) or by a package that ``./studio`` does not name fails the test: a
 fresh machine would not have it.
 
 Found by reading the code (``ast``): ``subprocess.run/Popen/call/check_call/check_output``
@@ -253,8 +253,9 @@ def owning_package(path: str) -> str | None:
             variants = (candidate,)
         for variant in variants:
             r = subprocess.run(["dpkg-query", "-S", variant], capture_output=True, text=True)
-            if r.returncode == 0:
-                return r.stdout.split(":")[0].split(",")[0].strip()
+            owners = [ln for ln in r.stdout.splitlines() if not ln.startswith("diversion by")]
+            if r.returncode == 0 and owners:
+                return owners[0].split(":")[0].split(",")[0].strip()
     return None
 
 
