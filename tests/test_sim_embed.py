@@ -50,3 +50,46 @@ def test_bad_input_is_refused(skirts):
     e = embed(target, proxy.vertices, proxy.faces)
     with pytest.raises(InputError, match="proxy positions"):
         drive(e, proxy.vertices[None, :5])
+
+
+def layered_target(around: int = 72, rings: int = 34) -> tuple[np.ndarray, np.ndarray]:
+    """A detailed two-tier skirt around the 24 x 12 proxy: a fine inner layer on the proxy and
+    an outer layer 2 cm outside it (one mesh, two pieces)."""
+    fine = frustum_skirt(around, rings)
+    outer = fine.vertices.astype(np.float64).copy()
+    r = np.linalg.norm(outer[:, [0, 2]], axis=1, keepdims=True)
+    outer[:, [0, 2]] *= (r + 0.02) / r
+    vertices = np.concatenate([fine.vertices, outer]).astype(np.float32)
+    return vertices, np.concatenate([fine.faces, fine.faces + fine.num_vertices])
+
+
+def test_embedded_target_does_not_tear_on_a_simulated_spin():
+    from core.body.shape import BodyShape
+    from core.sim.config import SimConfig
+    from core.sim.embed import strain_stats
+    from core.sim.simulate import simulate
+    from tests.sim_helpers import spin_motion
+
+    proxy = frustum_skirt(24, 12)
+    config = SimConfig(substeps=2, iterations=4, transition_s=0.2, settle_s=0.2)
+    cache, _ = simulate(proxy, spin_motion(12, turns_per_s=1.0), BodyShape(), config)
+    vertices, faces = layered_target()
+    e = embed(vertices, proxy.vertices, proxy.faces, target_faces=faces)
+    moved = drive(e, cache.positions)
+    assert np.linalg.norm(moved[-1] - vertices, axis=1).max() > 0.02  # it did move
+    stats = strain_stats(moved, vertices, faces)
+    assert stats.stretch_p99 <= 0.1 and stats.stretch_max <= 0.3, stats
+    assert stats.torn_edges == 0
+
+
+def test_strain_stats_measure_stretch_compression_and_tears():
+    from core.sim.embed import strain_stats
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64)
+    f = np.array([[0, 1, 2]])
+    moved = v.copy()
+    moved[1, 0] = 2.5  # edge 0-1 stretched by 1.5: a tear
+    moved[2, 1] = 0.5  # edge 0-2 compressed by half; edge 1-2 stretched by 0.80
+    s = strain_stats(np.stack([v, moved]), v, f)
+    assert np.isclose(s.stretch_max, 1.5) and np.isclose(s.compression_max, 0.5)
+    assert s.torn_edges == 1
