@@ -388,6 +388,35 @@ def _renderer_markdown(report: dict) -> list[str]:
     return lines
 
 
+def _ground_truth_markdown(report: dict) -> list[str]:
+    """The detailed target per clip: how it moves (simulated or embedded in the proxy), its
+    edge stretch and compression (``len / rest - 1``), tears, and its contact sheet."""
+    targets = {k: v for k, v in report["simulation"].items() if k.endswith("-target")}
+    if not targets:
+        return []
+    lines = [
+        "",
+        "## Ground truth: the detailed target",
+        "",
+        "| clip | mode | stretch max / p99 | compression max / p99 | torn edges (stretch > 1) |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for name, s in targets.items():
+        mode = "embedded in the proxy" if s.get("mode") == "embed" else "simulated"
+        p99 = s.get("strain_p99")
+        cp99 = s.get("compression_p99")
+        lines.append(
+            f"| {name[: -len('-target')]} | {mode} | {s['strain_max']:.3f} / "
+            f"{'-' if p99 is None else f'{p99:.3f}'} | {s.get('compression_max', 0.0):.3f} / "
+            f"{'-' if cp99 is None else f'{cp99:.3f}'} | {s.get('torn_edges', '-')} |"
+        )
+    for name, s in targets.items():
+        if s.get("sheet"):
+            lines += ["", f"{name[: -len('-target')]}: proxy above, target below", ""]
+            lines.append(f"![{name}](sim/{name}/{s['sheet']})")
+    return lines
+
+
 def report_markdown(report: dict) -> str:
     """The human-readable report: every figure with the command that produced it."""
     cmd = f"`{report['command']}`"
@@ -425,6 +454,7 @@ def report_markdown(report: dict) -> str:
             f"{s['penetration_mean_mm']:.2f} / {s['penetration_max_mm']:.1f} | "
             f"{s['strain_max']:.3f} | {s['finite']} |"
         )
+    lines += _ground_truth_markdown(report)
     j = report["joint2coarse"]
     lines += [
         "",

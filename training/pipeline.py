@@ -451,25 +451,25 @@ def sim_config(config: PipelineConfig):
 
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
     """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
-    simulation: edge strain against the rest garment, penetration into the body colliders."""
+    simulation: edge stretch and compression against the rest garment, tears, penetration into
+    the body colliders; ``sheet.png`` shows the proxy and the target on the body."""
     from core.body.shape import mannequin_skeleton
     from core.mesh import load_mesh
     from core.sim import SimCache, load_cache, save_cache
     from core.sim.colliders import body_capsules, pose_capsules
-    from core.sim.embed import drive, embed
-    from core.sim.simulate import edge_strain, penetration_depths, unique_edges
+    from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, drive, embed, strain_stats
+    from core.sim.simulate import penetration_depths
     from core.skeleton import forward_kinematics, skinning_transforms
 
     target_file = project.path("garment", "target.obj")
     proxy_file = project.path("proxy", "positions.obj")
     proxy_cache = project.path(f"sim/{motion_name}-proxy", "cache.npz")
     stage = f"sim/{motion_name}-target"
-    from core.sim.embed import DEFAULT_NEIGHBOURS
-
     params = {
         "mode": "embed",
-        "method": "skinned-to-proxy-frames",
-        "neighbours": DEFAULT_NEIGHBOURS,
+        "method": "smoothed-binding-deformation",
+        "smoothing_m": SMOOTHING_M,
+        "frame_smoothing_m": FRAME_SMOOTHING_M,
         "body": asdict(config.body),
     }
 
@@ -478,11 +478,10 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         proxy, _ = load_mesh(proxy_file)
         cache = load_cache(proxy_cache)
         start = time.perf_counter()
-        positions = drive(embed(target.vertices, proxy.vertices, proxy.faces), cache.positions)
+        embedding = embed(target.vertices, proxy.vertices, proxy.faces, target_faces=target.faces)
+        positions = drive(embedding, cache.positions)
         seconds = time.perf_counter() - start
-        edges = unique_edges(target.faces)
-        rest = np.linalg.norm(target.vertices[edges[:, 1]] - target.vertices[edges[:, 0]], axis=1)
-        strain = edge_strain(positions, edges, rest)
+        strain = strain_stats(positions, target.vertices, target.faces)
         motion = load_project_motion(project, motion_name)
         skeleton = mannequin_skeleton(config.body)
         pos, rot = forward_kinematics(skeleton, motion.rotations, motion.root_positions)
@@ -491,30 +490,60 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         depth = penetration_depths(positions, ends, capsules.radii)
         params_out = {**cache.params, "target_mode": "embed", "proxy_cache": str(proxy_cache)}
         save_cache(out / "cache.npz", SimCache(positions, target.faces, cache.fps, params_out))
+        rows = [("proxy", cache.positions, cache.faces), ("target", positions, target.faces)]
+        _garment_sheet(out / "sheet.png", rows, config.body, motion)
         report = {
             "mode": "embed",
             "frames": int(len(positions)),
             "vertices": int(target.num_vertices),
             "ms_per_frame": 1e3 * seconds / len(positions),
-            "strain_max": float(max(strain.max(), 0.0)),
-            "strain_mean": float(np.maximum(strain, 0.0).mean()),
-            "strain_p99": float(max(np.percentile(strain, 99), 0.0)),
-            "compression_max": float(max(-strain.min(), 0.0)),
+            "strain_max": strain.stretch_max,
+            "strain_p99": strain.stretch_p99,
+            "compression_max": strain.compression_max,
+            "compression_p99": strain.compression_p99,
+            "torn_edges": strain.torn_edges,
             "penetration_mean_mm": float(depth.mean() * 1e3),
             "penetration_max_mm": float(depth.max() * 1e3),
             "penetrating_fraction": float((depth > 0).mean()),
             "finite": bool(np.isfinite(positions).all()),
+            "sheet": "sheet.png",
         }
         write_json(out / "report.json", report)
         log(
             f"  {motion_name}/target (embedded in the proxy): {report['frames']} frames x "
-            f"{report['vertices']} vertices, {report['ms_per_frame']:.1f} ms/frame, "
+            f"{report['vertices']} vertices, {report['ms_per_frame']:.1f} ms/frame, stretch max "
+            f"{strain.stretch_max:.3f} p99 {strain.stretch_p99:.3f}, "
             f"penetration {report['penetration_mean_mm']:.2f} mm"
         )
-        return ["cache.npz", "report.json"]
+        return ["cache.npz", "report.json", "sheet.png"]
 
     project.run_stage(stage, params, [target_file, proxy_file, proxy_cache], work)
     return project.path(stage, "cache.npz")
+
+
+def _garment_sheet(path: Path, rows, shape, motion, frames: int = 5) -> None:
+    """A contact sheet: one row per garment ``rows`` [(label, positions (T, V, 3), faces
+    (F, 3))] on the posed mannequin, at ``frames`` frames spread over the clip (front view)."""
+    from core.body.mannequin import make_body
+    from core.body.skinning import pose_body
+    from core.camera import make_camera
+    from core.mesh import Mesh
+    from core.shading import contact_sheet, render_views, write_png
+
+    body = make_body(shape)
+    picked = np.linspace(0, len(rows[0][1]) - 1, frames).round().astype(int)
+    posed = pose_body(body, motion)
+    tiles, labels = [], []
+    for label, positions, faces in rows:
+        for f in picked:
+            centre = motion.root_positions[f].astype(np.float64)
+            eye = centre + np.array([0.0, 0.1, 2.6])
+            cam = make_camera(eye, centre + np.array([0.0, -0.2, 0.0]), width=192, height=192)
+            garment = Mesh(np.asarray(positions[f], np.float32), np.asarray(faces, np.int64))
+            (view,) = render_views(garment, Mesh(posed[f], body.faces), [cam])
+            tiles.append(view.image)
+            labels.append(f"{label} f{f}")
+    write_png(path, contact_sheet(tiles, labels, columns=len(picked)))
 
 
 def joint2coarse_config(config: PipelineConfig):
