@@ -33,7 +33,11 @@ def register(subparsers) -> None:
         "--min-part", type=float, default=d.min_component_fraction, metavar="FRACTION",
         help="drop parts smaller than this fraction of the largest part's area",
     )  # fmt: skip
-    p.add_argument("--layers", choices=LAYER_MODES, default=d.layers)
+    p.add_argument(
+        "--layers", choices=LAYER_MODES, default=d.layers,
+        help="envelope: stacked layers become their outer surface; keep: the surface as it is; "
+        "auto (default): the envelope only when layers are stacked (single-layer garments keep)",
+    )  # fmt: skip
     p.add_argument("--unit", choices=("auto", *UNITS_M), default=d.unit)
     p.add_argument(
         "--template", metavar="NAME",

@@ -25,7 +25,8 @@ def smooth_details(vertices: np.ndarray, faces: np.ndarray, scale: float) -> np.
     Implicit mean-curvature-like flow with libigl's cotangent Laplacian ``L`` and Voronoi mass
     ``M``: ``(M - dt L) x' = M x`` over ``SMOOTH_STEPS`` steps of total time
     ``T = scale**2 / (2 pi**2)``, which damps a fold of wavelength ``scale`` to about 20 % of its
-    height and one of ``3 * scale`` by less than 25 %. Boundary loops (hem, waist, cuffs) stay put.
+    height and one of ``3 * scale`` by less than 25 %. Boundary loops (hem, waist, cuffs) stay put
+    and vertices move only along their normal (no sliding within the surface).
 
     Parameters
     ----------
@@ -77,7 +78,17 @@ def smooth_details(vertices: np.ndarray, faces: np.ndarray, scale: float) -> np.
         x[free] = solve(rhs)
     if not np.isfinite(x).all():  # a degenerate Laplacian: keep the unsmoothed surface
         return v.copy()
-    return x
+    # Keep only the motion along the vertex normal. With clipped weights on sheared or obtuse
+    # triangles the flow also slides vertices within the surface (5 cm on a T-shirt's sides at
+    # a 2 cm scale), which drags the surface away from its fixed boundary; folds only need the
+    # normal motion.
+    tri = v[f]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(vn, f[:, k], fn)
+    vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+    return v + ((x - v) * vn).sum(axis=1, keepdims=True) * vn
 
 
 def subdivide_to(

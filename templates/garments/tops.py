@@ -206,14 +206,16 @@ def _top_edge(cfg: TopConfig, fit: BodyFit, local, centre, half, y_s, y_waist):
     return top_edge
 
 
-def _body_scene(fit: BodyFit):
-    """An Open3D ray-casting scene of the whole closed body."""
+def _body_scene(fit: BodyFit, head: bool = True):
+    """An Open3D ray-casting scene of the closed body; without the neck and head when ``head``
+    is False (a strap's arc must ride the shoulder, not climb the side of the head)."""
     import open3d as o3d
 
+    faces = fit.faces if head else fit.faces[(fit.kept | fit.arms)[fit.faces].all(axis=1)]
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(fit.vertices.astype(np.float32)),
-        o3d.core.Tensor(fit.faces.astype(np.uint32)),
+        o3d.core.Tensor(faces.astype(np.uint32)),
     )
     return scene
 
@@ -239,7 +241,7 @@ def _add_straps(cfg, fit, res, vertices, faces, theta, centre, half, y_s):
     """Ribbons over both shoulders, sharing their end rows with the bodice's top row."""
     import open3d as o3d
 
-    scene = _body_scene(fit)
+    shoulders, scene = _body_scene(fit, head=False), _body_scene(fit)
     h = fit.shape.height
     lift = cfg.clearance + cfg.ease
     u = np.stack([np.zeros_like(_ARC_PHI), np.sin(_ARC_PHI), np.cos(_ARC_PHI)], axis=1)
@@ -263,7 +265,7 @@ def _add_straps(cfg, fit, res, vertices, faces, theta, centre, half, y_s):
             for dx in (-0.5 * res, 0.0, 0.5 * res):
                 origin = centre_pt + [dx, 0.0, 0.0] + _ARC_START * u
                 rays = np.concatenate([origin, -u], axis=1).astype(np.float32)
-                t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(float)
+                t_hit = shoulders.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(float)
                 reach = np.maximum(reach, np.where(np.isfinite(t_hit), _ARC_START - t_hit, 0.0))
             arc = centre_pt + u * (reach + lift)[:, None]
             above = (arc[:, 1] > y_s + 0.25 * res) & (reach > 0)
