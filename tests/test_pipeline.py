@@ -46,6 +46,13 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]
     md = (out / "report.md").read_text()
     assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
+    # The ground truth names its mode, its strain and shows a contact sheet per clip.
+    assert "## Ground truth: the detailed target" in md and "embedded in the proxy" in md
+    for clip in ("dance", "twirl", "cmu-01_01"):
+        target = report["simulation"][f"{clip}-target"]
+        assert target["mode"] == "embed" and 0 <= target["strain_p99"] <= target["strain_max"]
+        assert (out / "sim" / f"{clip}-target" / "sheet.png").is_file()
+        assert f"](sim/{clip}-target/sheet.png)" in md
     assert "the shape autoencoder on its simulated shapes" in md
     assert "(discriminator), falling linearly to zero from step 15." in md  # of 30
     assert "- baseline `dnr`: 30 steps" in md and "learning rates constant" in md
