@@ -18,6 +18,7 @@ from core.mesh import Mesh, load_mesh, save_mesh, validate_mesh
 from core.proxy import ProxyConfig, covered_fraction, derive_proxy, mesh_stats
 from core.proxy.config import ENVELOPE_MIN_COVERED_FRACTION
 from core.proxy.envelope import garment_axis
+from core.proxy.simplify import decimate, is_oriented_manifold
 from core.proxy.testing import skirt_tube, split_uv_seams
 from core.proxy.topology import edge_counts
 from templates.garments import GARMENTS, make_garment
@@ -97,6 +98,31 @@ def test_covered_fraction_sees_layers_whatever_the_gap():
     both_f = np.concatenate([f, f + len(v)])
     area = mesh_stats(inner, f)["area_m2"] / mesh_stats(both_v, both_f)["area_m2"]
     assert covered_fraction(both_v, both_f, axis) == pytest.approx(area, abs=0.01)
+
+
+def test_manifold_check_routes_decimation():
+    """Only oriented manifolds go to libigl's collapses; the rest to fast-simplification."""
+    _, f = skirt_tube(n_around=24, n_along=8)
+    assert is_oriented_manifold(f)
+    flipped = f.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert not is_oriented_manifold(flipped)
+    assert not is_oriented_manifold(np.array([[0, 1, 2], [0, 3, 4]]))  # bow-tie, open
+    cones = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    assert is_oriented_manifold(cones)  # a closed tetrahedron
+    two = np.concatenate([cones, np.where(cones == 0, 0, cones + 3)])  # two sharing vertex 0
+    assert not is_oriented_manifold(two)
+    fins = np.concatenate([f, [[f[0, 0], f[0, 1], f.max() + 1]]])  # three faces on one edge
+    assert not is_oriented_manifold(fins)
+
+
+def test_decimation_keeps_a_one_triangle_wide_strap():
+    """A ribbon two vertices wide between two panels: it must survive as a ribbon."""
+    garment = coarser("slip-dress")
+    v, f = decimate(garment.vertices, garment.faces, 400)
+    stats = mesh_stats(v, f)
+    assert stats["boundary_loops"] == SINGLE_LAYER["slip-dress"]
+    assert stats["components"] == 1 and stats["edge_manifold"]
 
 
 def test_split_uv_seams_file_gives_the_welded_garment_proxy(tmp_path, capsys):

@@ -165,19 +165,44 @@ def decimate(
 
 def is_oriented_manifold(faces: np.ndarray) -> bool:
     """Whether ``faces`` (F, 3) int form an oriented 2-manifold, possibly with boundary: every
-    edge in one or two faces (used once each way), every boundary vertex on two boundary edges."""
+    edge in one or two faces (used once each way) and the faces around every vertex one fan
+    (no two cones or sheets meeting at a single vertex)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     f = np.asarray(faces, np.int64)
     if len(f) == 0:
         return False
     edges, counts = edge_counts(f)
     if counts.max() > 2:
         return False
-    directed = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     n = int(f.max()) + 1
-    if len(np.unique(directed[:, 0] * n + directed[:, 1])) != len(directed):
+    directed = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = directed[:, 0] * n + directed[:, 1]
+    if len(np.unique(key)) != len(key):
         return False
-    b = edges[counts == 1].ravel()
-    return len(b) == 0 or int(np.bincount(b).max()) <= 2
+    # Fans: face corners (face, vertex) joined across the edges two faces share; a manifold
+    # vertex has its corners in one group.
+    face_of = np.repeat(np.arange(len(f)), 3)
+    reverse = directed[:, 1] * n + directed[:, 0]
+    order = np.argsort(key)
+    pos = np.searchsorted(key[order], reverse)
+    pos = np.minimum(pos, len(key) - 1)
+    twin = order[pos]
+    shared = key[twin] == reverse
+    a, b = face_of[shared], face_of[twin[shared]]
+
+    def cid(fi: np.ndarray, vi: np.ndarray) -> np.ndarray:
+        """Corner index (face * 3 + slot) of vertex ``vi`` in face ``fi``."""
+        return fi * 3 + np.argmax(f[fi] == vi[:, None], axis=1)
+
+    src = directed[shared]
+    ca = np.concatenate([cid(a, src[:, 0]), cid(a, src[:, 1])])
+    cb = np.concatenate([cid(b, src[:, 0]), cid(b, src[:, 1])])
+    graph = coo_matrix((np.ones(len(ca)), (ca, cb)), shape=(3 * len(f),) * 2)
+    _, label = connected_components(graph, directed=False)
+    fans = np.unique(np.stack([f.ravel(), label], axis=1), axis=0)[:, 0]
+    return bool(np.bincount(fans).max() <= 1)
 
 
 def _igl_collapse(uniform: bool):
