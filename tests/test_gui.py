@@ -243,8 +243,10 @@ def tour(smoke_project, tmp_path_factory):
     window settings into project.json, so the shared project is not touched).
 
     A tour that hangs fails, with its diagnostics (:func:`tests.hang.run_watched`). Software
-    Vulkan has frozen a window for good once: the main thread waited in Filament's
-    ``SyncThreads`` (from ``Window::DrawOnce``) while a render thread spun at 100% CPU.
+    Vulkan has frozen a window for good, rarely (once in CI; once in 12 tours on the 2 busy
+    cores): no frame reached the screen after the first ones, Mesa's two llvmpipe threads spun
+    at 100% CPU, and ``run_one_tick`` blocked, the main thread waiting in Filament's
+    ``SyncThreads`` (from ``Window::DrawOnce``).
     """
     root = tmp_path_factory.mktemp("gui")
     project = root / "project"
