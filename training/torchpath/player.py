@@ -207,10 +207,13 @@ class TorchPlayer:
             self._capacity[key] = int(CAPACITY_SLACK * n) + 4096
         frags = rasterize(vertices, faces, camera, capacity=self._capacity[key])
         self.overflow.append(frags.overflow)
+        if len(self.overflow) > 256:  # folded on the device: a long stream keeps one flag
+            self.overflow = [torch.stack(self.overflow).any()]
         return frags
 
     def check_overflow(self) -> None:
-        """Raise if a fixed-capacity rasterization dropped pairs (reads the flags once)."""
+        """Raise if a fixed-capacity rasterization (``window="full"``) dropped pairs since the
+        last check (reads the flags once: call it now and then, e.g. at the end of a clip)."""
         if self.overflow and bool(torch.stack(self.overflow).any()):
             raise RuntimeError("rasterizer capacity exceeded: use window='crop'")
         self.overflow = []
@@ -224,8 +227,9 @@ class TorchPlayer:
         if key not in self._capacity:
             n = pair_count(body, self.body_faces, camera.scaled(ShadingConfig().supersample))
             self._capacity[key] = int(CAPACITY_SLACK * n) + 4096
-        # The supersampled rasterization happens inside; its overflow is not tracked here.
-        return render_background(body, self.body_faces, camera, capacity=self._capacity[key])
+        return render_background(
+            body, self.body_faces, camera, capacity=self._capacity[key], overflow=self.overflow
+        )
 
     def _box(self, vertices: torch.Tensor, camera: TorchCamera):
         """The network window of (B, Vp, 3) proxies: their joint screen box + margin, snapped

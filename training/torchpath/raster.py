@@ -30,6 +30,9 @@ from core.errors import InputError
 
 #: Pairs tested per block (bounds memory at about 100 bytes per pair).
 PAIR_BLOCK = 1 << 21
+#: Pixels by which a face's screen box is widened on each side. Far below a pixel: a triangle
+#: of a pixel or two (a body at 3x supersampling) tests a handful of pixels, not 3 x 3 or more.
+BOX_SLACK = 0.01
 _NO_HIT = torch.iinfo(torch.int64).max
 _FACE_BITS = 32
 
@@ -148,7 +151,8 @@ def _edge_planes(p: torch.Tensor):
 def _bounds(p: torch.Tensor, det: torch.Tensor, k: torch.Tensor, width: int, height: int, near):
     """Per-face pixel window (x0, y0, w, h) (N,) int64 each; zero size for skipped faces.
 
-    A face in front of ``near`` gets its projected bounding box widened by a pixel; a face
+    A face in front of ``near`` gets its projected bounding box (widened by
+    :data:`BOX_SLACK`); a face
     crossing ``near`` the whole image; a face behind it, or degenerate, nothing.
     ``k`` (N, 4) are the faces' intrinsics.
     """
@@ -161,10 +165,12 @@ def _bounds(p: torch.Tensor, det: torch.Tensor, k: torch.Tensor, width: int, hei
     u = fx * p[..., 0] / zs + cx
     v = fy * p[..., 1] / zs + cy
     big = float(4 * max(width, height) + 16)  # far off-screen corners stay finite as ints
-    x0 = torch.ceil(u.amin(1) - 0.5).clamp(-big, big) - 1
-    x1 = torch.floor(u.amax(1) - 0.5).clamp(-big, big) + 2  # exclusive
-    y0 = torch.ceil(v.amin(1) - 0.5).clamp(-big, big) - 1
-    y1 = torch.floor(v.amax(1) - 0.5).clamp(-big, big) + 2
+    # Pixel j's centre is j + 0.5: a box [a, b] covers pixels ceil(a - 0.5) .. floor(b - 0.5),
+    # here widened by BOX_SLACK pixels (the box is float64, the edge tests may be float32).
+    x0 = torch.ceil(u.amin(1) - 0.5 - BOX_SLACK).clamp(-big, big)
+    x1 = torch.floor(u.amax(1) - 0.5 + BOX_SLACK).clamp(-big, big) + 1  # exclusive
+    y0 = torch.ceil(v.amin(1) - 0.5 - BOX_SLACK).clamp(-big, big)
+    y1 = torch.floor(v.amax(1) - 0.5 + BOX_SLACK).clamp(-big, big) + 1
     crossing = n_front < 3
     x0 = torch.where(crossing, torch.zeros_like(x0), x0.clamp(0, width)).long()
     y0 = torch.where(crossing, torch.zeros_like(y0), y0.clamp(0, height)).long()

@@ -115,6 +115,7 @@ def render_background(
     config: ShadingConfig | None = None,
     *,
     capacity: int | None = None,
+    overflow: list | None = None,
 ) -> torch.Tensor:
     """The body alone: ([B,] H, W, 3) uint8 sRGB on the vertices' device.
 
@@ -125,6 +126,8 @@ def render_background(
     camera : TorchCamera at the output size (one or a batch of B)
     config : ShadingConfig (default: the data set's)
     capacity : rasterizer pair capacity at the supersampled size (None: exact, one sync)
+    overflow : a list the rasterizer's overflow flag (a 0-d bool tensor) is appended to
+        when a capacity is given
     """
     config = config or ShadingConfig()
     batched = vertices.dim() == 3
@@ -138,6 +141,8 @@ def render_background(
     k = config.supersample
     cam = camera.scaled(k)
     frags = rasterize(v, faces, cam, capacity=capacity)
+    if overflow is not None and frags.overflow is not None:
+        overflow.append(frags.overflow)
     lin = shade(frags.face_id, frags.barycentrics, v, faces, cam, config.body, config)
     nb, hh, ww, _ = lin.shape
     if k > 1:  # box filter: mean over k x k blocks
