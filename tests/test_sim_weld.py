@@ -90,3 +90,21 @@ def test_cli_simulates_a_split_seam_as_one_cloth(tmp_path, capsys):
     assert gap.max() < 1e-6
     # The seam did move: the cloth is simulated, not left at rest.
     assert np.linalg.norm(cache.positions[-1] - mesh.vertices, axis=1).max() > 0.01
+    # A detailed garment embeds in the split proxy's cache (welded the same way).
+    fine = frustum_skirt(48, 16)
+    save_mesh(tmp_path / "fine.obj", fine)
+    embed_args = [
+        "simulate", "--garment", str(tmp_path / "fine.obj"), "--embed-in",
+        str(tmp_path / "seams.obj"), str(tmp_path / "c.npz"), "--out", str(tmp_path / "f.npz"),
+        "--json",
+    ]  # fmt: skip
+    assert main(embed_args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["frames"] == 4 and report["vertices"] == fine.num_vertices
+    assert report["torn_edges"] == 0 and report["stretch_max"] <= 0.3
+    assert load_cache(tmp_path / "f.npz").positions.shape == (4, fine.num_vertices, 3)
+    # A cache of another mesh is refused, naming the file.
+    save_mesh(tmp_path / "other.obj", frustum_skirt(20, 12))
+    embed_args[4] = str(tmp_path / "other.obj")
+    assert main(embed_args) == 2
+    assert "topology mismatch" in capsys.readouterr().err

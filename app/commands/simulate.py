@@ -9,6 +9,11 @@ Simulate::
 onto the mannequin) or a procedural kind (``dance``, ``twirl``...). Writes the cache and a JSON
 report beside it (``CACHE.report.json``).
 
+Embed a detailed garment in a simulated proxy instead (``core.sim.embed``; reports the
+garment's edge stretch, compression and tears)::
+
+    dng simulate --garment TARGET.obj --embed-in PROXY.obj PROXY_CACHE.npz --out CACHE.npz
+
 Import a cache simulated elsewhere (OBJ-sequence folder, ``.pc2``, ``.mdd``, ``.npz``)::
 
     dng simulate --import frames/ --garment G.obj --out CACHE.npz [--fps 30]
@@ -34,6 +39,10 @@ def register(subparsers) -> None:
         "--motion", help="BVH or glTF/GLB file, or a procedural kind (dance, twirl, walk...)"
     )
     p.add_argument("--import", dest="import_from", metavar="CACHE", help="import this cache")
+    p.add_argument(
+        "--embed-in", nargs=2, metavar=("PROXY", "CACHE"),
+        help="drive the garment by this proxy mesh's simulation (its cache) instead",
+    )  # fmt: skip
     p.add_argument("--out", required=True, help="cache to write (.npz)")
     p.add_argument("--frames", type=int, default=150, help="procedural motion: frames (150)")
     p.add_argument("--fps", type=float, default=None, help="frame rate (procedural: 30)")
@@ -140,6 +149,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=2) if args.json else f"imported {report}")
         return 0
 
+    if args.embed_in:
+        return _embed(args, garment, out)
+
     from core.sim.config import QUALITY
 
     if args.quality not in QUALITY:
@@ -204,6 +216,52 @@ def run(args: argparse.Namespace) -> int:
             f"strain max {report.strain_max:.3f} (limit {report.strain_limit}), "
             f"penetration mean {report.penetration_mean_mm:.3f} mm, "
             f"retried frames {list(report.retried_frames)}"
+        )
+    return 0
+
+
+def _embed(args: argparse.Namespace, garment, out: Path) -> int:
+    """The garment embedded in a simulated proxy: its cache, and its strain as a report."""
+    import numpy as np
+
+    from core.errors import InputError
+    from core.fileio import write_json
+    from core.mesh import load_mesh, weld_mesh
+    from core.sim.cache import SimCache, load_cache, save_cache
+    from core.sim.embed import drive, embed, strain_stats
+
+    proxy_file, cache_file = args.embed_in
+    proxy, _ = load_mesh(proxy_file)
+    cache = load_cache(cache_file)
+    welded, index = weld_mesh(proxy)
+    if cache.num_vertices not in (proxy.num_vertices, welded.num_vertices):
+        raise InputError(
+            f"topology mismatch: cache has {cache.num_vertices} vertices, proxy {proxy_file} "
+            f"has {proxy.num_vertices} ({welded.num_vertices} welded)",
+            cache_file,
+        )
+    positions = cache.positions
+    if cache.num_vertices == proxy.num_vertices:  # a cache of the split file: weld it too
+        positions = positions[:, np.unique(index, return_index=True)[1]]
+    e = embed(garment.vertices, welded.vertices, welded.faces, target_faces=garment.faces)
+    moved = drive(e, positions)
+    params = {**cache.params, "target_mode": "embed", "proxy_cache": str(cache_file)}
+    save_cache(out, SimCache(moved, garment.faces, cache.fps, params))
+    stats = strain_stats(moved, garment.vertices, garment.faces)
+    data = {
+        "cache": str(out), "garment": args.garment, "proxy": str(proxy_file),
+        "proxy_cache": str(cache_file), "frames": len(moved), "vertices": garment.num_vertices,
+        **stats.as_dict(),
+    }  # fmt: skip
+    write_json(_report_path(out, ".report.json"), data)
+    if args.json:
+        print(json.dumps(data, indent=2))
+    else:
+        print(
+            f"{out}: {len(moved)} frames x {garment.num_vertices} vertices embedded in "
+            f"{proxy_file}, stretch max {stats.stretch_max:.3f} p99 {stats.stretch_p99:.3f}, "
+            f"compression max {stats.compression_max:.3f} p99 {stats.compression_p99:.3f}, "
+            f"torn edges {stats.torn_edges}"
         )
     return 0
 
