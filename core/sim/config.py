@@ -74,6 +74,10 @@ class SimConfig:
     are the trustworthy setting: on the dance, the 1.9k long skirt keeps its stretch within
     cotton's limit (max 0.16); ``draft`` (2 x 8) is 5x cheaper but ~7 cm off and stretches
     locally to 0.25."""
+    linear_iterations: int = 10
+    """Conjugate-gradient iterations of each Style3D iteration's linear solve (newton's
+    default is 10). Too few and the waist's motion does not reach the hem within a step: the
+    skirt lags the body and winds up on a spin (see :data:`QUALITY`)."""
     self_collision: bool | None = None
     """Cloth-cloth contact. ``None``: on when the garment has several pieces (layers, frills:
     where layers touch), off for a single surface such as a proxy (nothing to collide with).
@@ -101,6 +105,10 @@ class SimConfig:
     contact_gap: float = 0.01
     """Extra distance (metres) at which body contacts are detected ahead of touching, so a fast
     limb is seen before it passes through the cloth within one step."""
+    damping: float = 0.0
+    """Velocity damping (1/s): every step multiplies the cloth's velocities by
+    ``exp(-damping * dt)``, the same drag per second at any step size (air drag is small; the
+    solver's own fixed per-step drag is divided out, see ``core.sim.simulate``)."""
     contact_ke: float = 1.0e4
     """Body-contact stiffness, N/m."""
     max_retries: int = 2
@@ -122,6 +130,7 @@ class SimConfig:
         checks = {
             "substeps": self.substeps >= 1,
             "iterations": self.iterations >= 1,
+            "linear_iterations": self.linear_iterations >= 1,
             "transition_s": self.transition_s >= 0,
             "settle_s": self.settle_s >= 0,
             "pin_distance": self.pin_distance >= 0,
@@ -129,6 +138,7 @@ class SimConfig:
             "self_contact_thickness": self.self_contact_thickness > 0,
             "contact_ke": self.contact_ke > 0,
             "contact_gap": self.contact_gap >= 0,
+            "damping": self.damping >= 0,
             "max_retries": self.max_retries >= 0,
             "max_speed": self.max_speed > 0,
             "blowup_strain": self.blowup_strain >= 1,

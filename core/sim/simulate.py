@@ -52,6 +52,11 @@ CHEST_LEVEL = 0.72
 #: particle's holds its stretch stiffness and mass / dt^2, orders of magnitude more): small
 #: enough to leave those contacts without force, but not 0.
 KINEMATIC_CONTACT_WEIGHT = 1.0e-6
+#: Style3D multiplies every velocity by this at the end of each step (newton's
+#: ``update_velocity``): a drag of 0.002 per step, so 0.48 per second at 8 steps per frame and
+#: twice that at 16: finer steps damped more, and no step size converged to one motion.
+#: :class:`_Scene` divides it out and applies ``SimConfig.damping`` per second instead.
+STYLE3D_VELOCITY_FACTOR = 0.998
 
 
 class SimulationError(InputError):
@@ -292,6 +297,9 @@ class _Scene:
                     model=m,
                     config=newton.solvers.SolverStyle3D.Config(iterations=config.iterations),
                 )
+            self.solver.config.linear_iterations = config.linear_iterations
+            if not self.device.is_cuda:
+                self._serial_pcg()
             col = self.solver.collision
             # Style3D keeps twice this radius between cloth pieces (its "thickness").
             col.radius = 0.5 * config.self_contact_thickness
@@ -339,6 +347,40 @@ class _Scene:
         self.faces = wp.array((garment.faces + first).astype(np.int32), dtype=wp.vec3i, device=dev)
         self.normals = wp.zeros(self.model.particle_count, dtype=wp.vec3, device=dev)
         self.n = garment.num_vertices
+
+    def _serial_pcg(self) -> None:
+        """Run each of Style3D's linear solves as one launch of :func:`pcg_serial`.
+
+        Newton's PCG launches five kernels per iteration; on a CPU each launch costs tens of
+        microseconds of Python and argument packing, more than the arithmetic on a few thousand
+        particles, and ``linear_iterations`` of them run per solver iteration. The ELL matrix is
+        constant (built once from the rest shape); it is unpacked here once.
+        """
+        from core.sim._kernels import pcg_serial
+
+        wp, dev, solver = self.wp, self.device, self.solver
+        n = self.model.particle_count
+        ell = solver.pd_non_diags.nz_ell.numpy()
+        column = wp.array(np.ascontiguousarray(ell["column_index"]), dtype=wp.int32, device=dev)
+        value = wp.array(np.ascontiguousarray(ell["value"]), dtype=wp.float32, device=dev)
+        num_nz = solver.pd_non_diags.num_nz
+        scratch = [wp.zeros(n, dtype=wp.vec3, device=dev) for _ in range(4)]
+        no_contacts = wp.zeros(n, dtype=wp.mat33, device=dev)
+        col = solver.collision
+
+        def solve(a_non_diag, a_diag, x0, b, inv_m, x1, iterations, additional=None):
+            if x0 is not None and x0.ptr != x1.ptr:
+                x1.assign(x0)
+            h = no_contacts if additional is None else col.contact_hessian_diagonal()
+            wp.launch(
+                pcg_serial,
+                dim=1,
+                inputs=[n, int(iterations), int(x0 is not None), num_nz, column, value, a_diag,
+                        h, b, inv_m, x1, *scratch],
+                device=dev,
+            )  # fmt: skip
+
+        solver.linear_solver.solve = solve
 
     def _guard_pinned_contacts(self) -> None:
         """Make Style3D's cloth-cloth contacts among kinematic particles finite (and nil).
@@ -414,28 +456,40 @@ class _Scene:
         )
 
     def _body_poses(self, m: np.ndarray) -> np.ndarray:
-        """Capsule body transforms (K, 7) [p, q xyzw] for skinning transforms m (J, 4, 4)."""
+        """Capsule body transforms [p, q xyzw] for skinning transforms m (..., J, 4, 4):
+        (..., K, 7) float32 (a whole drive's steps at once, or one pose)."""
         from scipy.spatial.transform import Rotation
 
-        mk = np.asarray(m, np.float64)[self.caps_joint]
-        rot = mk[:, :3, :3] @ self.caps_r
-        pos = np.einsum("kab,kb->ka", mk[:, :3, :3], self.caps_c) + mk[:, :3, 3]
-        return np.concatenate([pos, Rotation.from_matrix(rot).as_quat()], axis=1).astype(np.float32)
+        mk = np.asarray(m, np.float64)[..., self.caps_joint, :, :]
+        rot = mk[..., :3, :3] @ self.caps_r
+        pos = np.einsum("...kab,kb->...ka", mk[..., :3, :3], self.caps_c) + mk[..., :3, 3]
+        quat = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat().reshape(rot.shape[:-2] + (4,))
+        return np.concatenate([pos, quat], axis=-1).astype(np.float32)
 
     def _body_vel(self, pa: np.ndarray, pb: np.ndarray, dt: float) -> np.ndarray:
+        """Spatial velocities (..., K, 6) [linear, angular] taking poses pa to pb (..., K, 7)."""
         from scipy.spatial.transform import Rotation
 
-        lin = (pb[:, :3] - pa[:, :3]) / dt
-        ang = (Rotation.from_quat(pb[:, 3:]) * Rotation.from_quat(pa[:, 3:]).inv()).as_rotvec() / dt
-        return np.concatenate([lin, ang], axis=1).astype(np.float32)
+        lin = (pb[..., :3] - pa[..., :3]) / dt
+        qa, qb = pa[..., 3:].reshape(-1, 4), pb[..., 3:].reshape(-1, 4)
+        ang = (Rotation.from_quat(qb) * Rotation.from_quat(qa).inv()).as_rotvec() / dt
+        return np.concatenate([lin, ang.reshape(lin.shape)], axis=-1).astype(np.float32)
 
-    def step(self, ma: np.ndarray, mb: np.ndarray, dt: float) -> None:
-        """One solver step with the body moving from transforms ``ma`` to ``mb`` (J, 4, 4)."""
-        from core.sim._kernels import set_pinned
+    def step(
+        self, ma: np.ndarray, mb: np.ndarray, dt: float, poses: tuple | None = None
+    ) -> None:
+        """One solver step with the body moving from transforms ``ma`` to ``mb`` (J, 4, 4).
+
+        ``poses``: the capsules' (pa, pb, velocity) for them when already computed (a whole
+        drive's at once, :meth:`_body_poses` and :meth:`_body_vel` on all its steps)."""
+        from core.sim._kernels import scale_velocities, set_pinned
 
         wp = self.wp
-        pa, pb = self._body_poses(ma), self._body_poses(mb)
-        vel = self._body_vel(pa, pb, dt)
+        if poses is None:
+            pa, pb = self._body_poses(ma), self._body_poses(mb)
+            vel = self._body_vel(pa, pb, dt)
+        else:
+            pa, pb, vel = poses
         dev = self.device
         self.s0.body_q.assign(wp.array(pa, dtype=wp.transform, device=dev))
         self.s0.body_qd.assign(wp.array(vel, dtype=wp.spatial_vector, device=dev))
@@ -457,6 +511,16 @@ class _Scene:
         self.pipeline.collide(self.s0, self.contacts)
         self.solver.step(self.s0, self.s1, self.control, self.contacts, dt)
         self.s0, self.s1 = self.s1, self.s0
+        factor = float(np.exp(-self.config.damping * dt))
+        if self.config.solver == "style3d":
+            factor /= STYLE3D_VELOCITY_FACTOR
+        if factor != 1.0:
+            wp.launch(
+                scale_velocities,
+                dim=self.n,
+                inputs=[self.first_particle, factor, self.s0.particle_qd],
+                device=dev,
+            )
         self._sew(0.0)
 
     def _sew(self, ahead: float) -> None:
@@ -585,6 +649,8 @@ def simulate(
             f"self-collision {'on: the garment has several pieces' if layered else 'off: one surface'}"
         )
     scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0])
+    poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
+    velocities = scene._body_vel(poses[:-1], poses[1:], drive.dt)
     fab = config.material
     strain_blowup = config.blowup_strain * fab.max_strain
 
@@ -614,9 +680,12 @@ def simulate(
             split = 2**attempt
             for s in range(a, b):
                 ma, mb = drive.transforms[s], drive.transforms[s + 1]
+                if split == 1:
+                    scene.step(ma, mb, drive.dt, (poses[s], poses[s + 1], velocities[s]))
+                    continue
                 for k in range(split):
-                    m0 = ma if split == 1 else _interp_transforms(ma, mb, k / split)
-                    m1 = mb if split == 1 else _interp_transforms(ma, mb, (k + 1) / split)
+                    m0 = _interp_transforms(ma, mb, k / split)
+                    m1 = _interp_transforms(ma, mb, (k + 1) / split)
                     scene.step(m0, m1, drive.dt / split)
             problem = check(scene.positions(), scene.velocities(), b)
             if problem is None:
