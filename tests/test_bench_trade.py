@@ -195,6 +195,7 @@ def test_bench_all_runs_each_with_defaults(tmp_path, dng, monkeypatch):
         "sim": _fake("sim", error=InputError("bad garment", "/x.obj")),
         "raster": _fake("raster", error=RuntimeError("boom")),
         "render": _fake("render", code=0),
+        "train": _fake("train"),
         "trade": _fake("trade"),
         "placement": _fake("placement"),
     }
@@ -205,7 +206,7 @@ def test_bench_all_runs_each_with_defaults(tmp_path, dng, monkeypatch):
     summary = json.loads(text)  # stdout holds only the summary
     assert summary == json.loads((out / "all.json").read_text())
     by = {r["bench"]: r for r in summary["benches"]}
-    assert list(by) == ["proxy", "sim", "raster", "render", "trade", "placement"]
+    assert list(by) == ["proxy", "sim", "raster", "render", "train", "trade", "placement"]
     assert by["proxy"]["ran"] and by["proxy"]["exit_code"] == 0 and by["proxy"]["seconds"] >= 0
     assert by["sim"]["exit_code"] == 2 and "bad garment" in by["sim"]["error"]
     assert by["raster"]["exit_code"] == 1 and "boom" in by["raster"]["error"]

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 #: Known benches, in the order ``dng bench --help`` lists them.
-BENCHES = ("proxy", "sim", "raster", "render", "trade", "placement", "all")
+BENCHES = ("proxy", "sim", "raster", "render", "train", "trade", "placement", "all")
 #: Benches that measure a trained project (``--project DIR``, required).
 PROJECT_BENCHES = ("trade", "placement")
 #: Where benches write their JSON tables and PNG plots unless told otherwise.

@@ -1,0 +1,211 @@
+"""``dng bench train``: neural-renderer training speed: steps per second, peak memory, and the
+share of each step spent waiting for data.
+
+Each row trains the renderer of a preset (random initial weights) for a few steps with the
+studio's own training step (``training.renderer.train._Trainer.train_step``: generator,
+temporal discriminator, L1, feature matching, GAN; the perceptual loss when its VGG file is
+there; the config's mixed precision on CUDA), fed by a ``torch.utils.data.DataLoader`` with
+``--workers`` processes and pinned memory on CUDA, batches copied to the device without
+blocking.
+
+The batches are **synthetic**: random tensors of exactly the shapes of the data set's samples
+(frames t-1, t, t+1 of UV (2), motion features (95), proxy mask, target, background and target
+mask at the given size), made in the workers; speed does not depend on the pixel values.
+"Waiting" is the time a step spends in ``next(loader)`` and the copy to the device: on CUDA the
+GPU is idle then, as each step ends by reading its losses back.
+
+Rows name the device and the torch version; peak memory is CUDA's ``max_memory_allocated`` on
+a GPU and the process's peak resident size on the CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+HELP = "renderer training: steps/s, peak memory and the share of each step waiting for data"
+#: Steps run before timing (allocator, cuDNN autotuning, worker start-up).
+WARMUP = 2
+
+
+class ShapeDataset:
+    """Random samples of the data set's shapes (see the module docstring).
+
+    Parameters
+    ----------
+    length : samples; size : image side (pixels); motion_channels : C of the motion features
+    """
+
+    def __init__(self, length: int, size: int, motion_channels: int = 95, seed: int = 0):
+        from training.renderer.data import SAMPLE_KEYS
+
+        self.length, self.size, self.seed = length, size, seed
+        self.channels = {k: motion_channels if c is None else c for k, c in SAMPLE_KEYS.items()}
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, i: int) -> dict:
+        import torch
+
+        g = torch.Generator().manual_seed(self.seed + i)
+        out = {}
+        for k, c in self.channels.items():
+            t = torch.rand(3, c, self.size, self.size, generator=g)
+            out[k] = (t > 0.3).float() if k.endswith("mask") else t
+        return out
+
+
+def measure_one(
+    preset: str, size: int, batch: int, device: str, steps: int, workers: int, out_dir
+) -> dict:
+    """Train ``steps`` timed steps (after :data:`WARMUP`); one row."""
+    import resource
+    from dataclasses import replace
+
+    import torch
+
+    from app.bench.render import device_name
+    from training.renderer import PRESETS
+    from training.renderer.data import RenderBatch
+    from training.renderer.train import _Trainer
+
+    cuda = str(device).startswith("cuda")
+    dev = torch.device(device)
+    config = replace(PRESETS[preset], batch_size=batch)
+    n = batch * (steps + WARMUP)
+    data = ShapeDataset(n, size, config.motion_channels)
+    trainer = _Trainer(
+        data, config, out_dir, device=dev, steps=steps + WARMUP, init_from=None, trainable="all"
+    )
+    loader = torch.utils.data.DataLoader(
+        data, batch_size=batch, shuffle=False, num_workers=workers, pin_memory=cuda,
+        drop_last=True, persistent_workers=False,
+    )  # fmt: skip
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
+    if cuda:
+        torch.cuda.reset_peak_memory_stats(dev)
+    waits, totals = [], []
+    it = iter(loader)
+    for step in range(steps + WARMUP):
+        sync()
+        t0 = time.perf_counter()
+        sample = next(it)
+        batch_dev = RenderBatch.from_dict(
+            {k: v.to(dev, non_blocking=True) for k, v in sample.items()}, config.motion_channels
+        )
+        t1 = time.perf_counter()
+        trainer.train_step(batch_dev)
+        trainer.step += 1
+        sync()
+        t2 = time.perf_counter()
+        if step >= WARMUP:
+            waits.append(t1 - t0)
+            totals.append(t2 - t0)
+    if cuda:
+        peak = torch.cuda.max_memory_allocated(dev) / 2**20
+    else:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    step_s = float(np.mean(totals))
+    return {
+        "preset": preset,
+        "size": size,
+        "batch": batch,
+        "workers": workers,
+        "device": str(device),
+        "device_name": device_name(device),
+        "torch": torch.__version__,
+        "data": "synthetic (shapes of the data set's samples)",
+        "mixed_precision": "fp16" if trainer.amp else "off",
+        "perceptual": trainer.perceptual is not None,
+        "steps": steps,
+        "ms_per_step": 1e3 * step_s,
+        "steps_per_s": 1.0 / step_s,
+        "images_per_s": batch / step_s,
+        "wait_share": float(np.sum(waits) / np.sum(totals)),
+        "peak_memory_mib": peak,
+        "peak_memory_kind": "cuda max_memory_allocated" if cuda else "process peak RSS",
+        "load_average": os.getloadavg()[0],
+    }
+
+
+HEADER = (
+    f"{'preset':>7} {'size':>5} {'batch':>5} {'wkr':>3} {'amp':>4} {'ms/step':>8} "
+    f"{'steps/s':>7} {'img/s':>6} {'wait':>6} {'peak MiB':>9} {'load':>5}  device / torch"
+)
+
+
+def format_row(r: dict) -> str:
+    return (
+        f"{r['preset']:>7} {r['size']:>5} {r['batch']:>5} {r['workers']:>3} "
+        f"{r['mixed_precision']:>4} {r['ms_per_step']:>8.1f} {r['steps_per_s']:>7.2f} "
+        f"{r['images_per_s']:>6.2f} {r['wait_share']:>6.1%} {r['peak_memory_mib']:>9.0f} "
+        f"{r['load_average']:>5.2f}  {r['device_name']} / torch {r['torch']}"
+    )
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from app.bench import add_output_arguments
+
+    add_output_arguments(parser)
+    parser.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
+    parser.add_argument(
+        "--preset", default=None, help="renderer preset (default: cpu on CPU, paper on CUDA)"
+    )
+    parser.add_argument(
+        "--size", type=int, default=None, help="image side (default: 128 on CPU, 512 on CUDA)"
+    )
+    parser.add_argument(
+        "--batch", type=int, nargs="+", default=None,
+        help="batch sizes (default: 2 on CPU, 2 4 8 on CUDA)",
+    )  # fmt: skip
+    parser.add_argument("--steps", type=int, default=None, help="timed steps (default 4 / 20)")
+    parser.add_argument("--workers", type=int, default=2, help="DataLoader worker processes")
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    import tempfile
+    from pathlib import Path
+
+    import torch
+
+    from core.errors import InputError
+    from core.fileio import write_json
+    from training.renderer import PRESETS
+
+    cuda = args.device.startswith("cuda")
+    if cuda and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA GPU on this machine")
+    preset = args.preset or ("paper" if cuda else "cpu")
+    if preset not in PRESETS:
+        raise InputError(f"unknown preset {preset!r}; choose from {', '.join(PRESETS)}")
+    size = args.size or (512 if cuda else 128)
+    batches = args.batch or ([2, 4, 8] if cuda else [2])
+    steps = args.steps or (20 if cuda else 4)
+    stride = PRESETS[preset].stride
+    if size % stride or size < stride or steps < 1 or min(batches) < 1 or args.workers < 0:
+        raise InputError(
+            f"--size must be a multiple of the network's stride {stride}; --steps and --batch "
+            "at least 1, --workers at least 0"
+        )
+    say = (lambda *a: None) if args.json else print
+    say(f"device {args.device}; synthetic batches of the data set's shapes")
+    say(HEADER)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for b in batches:
+            row = measure_one(preset, size, b, args.device, steps, args.workers, Path(tmp))
+            rows.append(row)
+            say(format_row(row))
+    table = {"bench": "train", "device": args.device, "torch": torch.__version__, "rows": rows}
+    out = Path(args.out)
+    write_json(out / "train.json", table)
+    if args.json:
+        print(json.dumps(table, indent=2))
+    else:
+        print(f"wrote {out / 'train.json'}")
+    return 0
