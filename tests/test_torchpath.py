@@ -90,31 +90,35 @@ def test_torch_raster_batch_capacity_and_empty():
     assert (empty.face_id == -1).all() and torch.isinf(empty.depth).all()
 
 
-#: Modules a machine with only torch and numpy lacks, blocked while importing the path.
-BLOCKED = ("open3d", "warp", "newton", "trimesh", "scipy", "PIL", "matplotlib", "tqdm", "imageio")
+#: Modules a machine with only torch and numpy lacks, made absent while importing the path.
+BLOCKED = (
+    "open3d", "warp", "newton", "trimesh", "scipy", "PIL", "matplotlib", "tqdm", "imageio",
+    "torchvision",
+)  # fmt: skip
 
 
 def test_import_needs_only_torch_and_numpy(tmp_path):
-    """The path imports, and the torch-path bench runs, with every other library blocked
-    (what a machine with only torch and numpy sees)."""
+    """The path imports, and the torch-path render bench and the train bench run, with every
+    other library absent (a ``None`` in ``sys.modules`` is what Python reports as not
+    installed): what a machine with only torch and numpy sees."""
     code = f"""
 import sys
-class Block:
-    def find_spec(self, name, path=None, target=None):
-        if name.split('.')[0] in {BLOCKED!r}:
-            raise ImportError('blocked: ' + name)
-sys.meta_path.insert(0, Block())
+for name in {BLOCKED!r}:
+    sys.modules[name] = None
 import training.torchpath
-assert not any(m in sys.modules for m in {BLOCKED!r})
 from app.cli import main
-code = main(["bench", "render", "--path", "torch", "--size", "24", "--threads", "1",
-             "--frames", "1", "--batch", "1", "--presets", "tiny", "--out", {str(tmp_path)!r}])
-assert code == 0 and not any(m in sys.modules for m in {BLOCKED!r})
+out = {str(tmp_path)!r}
+assert main(["bench", "render", "--path", "torch", "--size", "24", "--threads", "1",
+             "--frames", "1", "--batch", "1", "--presets", "tiny", "--out", out]) == 0
+assert main(["bench", "train", "--preset", "tiny", "--size", "32", "--batch", "2",
+             "--steps", "1", "--workers", "0", "--out", out]) == 0
+assert all(sys.modules[name] is None for name in {BLOCKED!r})
 print('ok')
 """
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0 and res.stdout.strip().endswith("ok"), res.stderr
-    assert (tmp_path / "render.json").is_file() and not (tmp_path / "render.png").exists()
+    assert (tmp_path / "render.json").is_file() and (tmp_path / "train.json").is_file()
+    assert not (tmp_path / "render.png").exists()  # no matplotlib: the table only
 
 
 def test_renderer_forward_bf16_close_to_fp32():

@@ -29,6 +29,8 @@ import numpy as np
 HELP = "renderer training: steps/s, peak memory and the share of each step waiting for data"
 #: Steps run before timing (allocator, cuDNN autotuning, worker start-up).
 WARMUP = 2
+#: Smallest image the temporal discriminator takes (three stride-2 4x4 convs, two more 4x4).
+MIN_SIZE = 32
 
 
 class ShapeDataset:
@@ -187,11 +189,13 @@ def run(args: argparse.Namespace) -> int:
     batches = args.batch or ([2, 4, 8] if cuda else [2])
     steps = args.steps or (20 if cuda else 4)
     stride = PRESETS[preset].stride
-    if size % stride or size < stride or steps < 1 or min(batches) < 1 or args.workers < 0:
+    if size % stride or size < max(stride, MIN_SIZE) or steps < 1 or min(batches) < 1:
         raise InputError(
-            f"--size must be a multiple of the network's stride {stride}; --steps and --batch "
-            "at least 1, --workers at least 0"
+            f"--size must be a multiple of the network's stride {stride} and at least "
+            f"{MIN_SIZE} (the discriminator's window); --steps and --batch at least 1"
         )
+    if args.workers < 0:
+        raise InputError("--workers must be at least 0")
     say = (lambda *a: None) if args.json else print
     say(f"device {args.device}; synthetic batches of the data set's shapes")
     say(HEADER)
