@@ -27,6 +27,14 @@ Why not the simpler bindings (measured on the quick demo's multilayer skirt, 39k
   have closest points more than 3 edge lengths apart at rest (tiers and frills up to 95 mm off
   the proxy, 20 % of the vertices more than 40 mm), so neighbours are bound across gaps.
 
+Measured with the project's commands (multilayer skirt, 39k vertices; its 989-vertex proxy
+from ``dng proxy target.obj --out proxy.obj --target-verts 1000 --texture-size 512``, simulated
+with ``dng simulate --garment proxy.obj --motion twirl --frames 90 --seed 1 --substeps 2
+--iterations 16 --out twirl-proxy.npz``; then ``dng simulate --garment target.obj --embed-in
+proxy.obj twirl-proxy.npz --out twirl-target.npz``): stretch max 0.352, p99 0.056 on the twirl,
+0.285 and 0.044 on a 150-frame dance, no torn edges. The largest stretch sits on the layers'
+gathered waistline (3 mm edges), where the proxy itself stretches up to 0.28.
+
 Compression is not a tear: where the proxy crumples, the target follows it (its edges shorten),
 it does not open holes; :func:`strain_stats` reports both.
 """
