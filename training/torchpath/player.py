@@ -153,8 +153,7 @@ class TorchPlayer:
     def _frames(self, frames) -> torch.Tensor:
         if self.clip is None:
             raise InputError("no clip: call set_clip first")
-        f = torch.as_tensor(frames, device=self.device).long().reshape(-1)
-        return f
+        return torch.as_tensor(frames, device=self.device).long().reshape(-1)
 
     def proxy(self, frames) -> torch.Tensor:
         """Joint2Coarse's UV-split proxy at frames (B,) int: (B, Vp, 3) float32 on the device."""

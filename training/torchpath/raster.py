@@ -13,16 +13,18 @@ Shapes are static when a pair ``capacity`` is given (no host synchronisation: CU
 stream friendly); pairs past the capacity are dropped and :attr:`TorchFragments.overflow` says
 so. Without a capacity the exact pair count is read from the device (one scalar).
 
-Computation is in float32 by default (``dtype=torch.float64`` for the reference's precision):
-results differ from the reference only where two triangles tie (a pixel centre on a shared
-edge, equal depths in float32) or a pixel centre lies on a silhouette edge within rounding.
+The per-face set-up (camera-space corners, edge planes, boxes) and the winners' barycentrics
+and depth are float64; the (triangle, pixel) tests are float32 by default
+(``dtype=torch.float64``: the reference's arithmetic, and its face ids exactly, in the tests).
+In float32 results differ from the reference only where two triangles tie (a pixel centre on a
+shared edge, equal depths in float32) or a pixel centre lies on a silhouette edge within
+rounding.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from core.camera import Camera
@@ -313,8 +315,3 @@ def pair_count(
     kf = _batch_intrinsics(camera, len(v)).repeat_interleave(len(faces), 0)
     _, _, bw, bh = _bounds(p, det, kf, camera.width, camera.height, near)
     return int((bw * bh).sum())
-
-
-def faces_tensor(faces: np.ndarray, device) -> torch.Tensor:
-    """(F, 3) int64 tensor of a face array."""
-    return torch.as_tensor(np.asarray(faces, np.int64)).to(device)
