@@ -1,7 +1,10 @@
 """Joint2Coarse inference speed on CPU: streaming latency per frame and batched throughput.
 
 Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600]
-[--threads 1 2] [--output-basis 256 0]``
+[--threads 1 2] [--output-basis 256 0] [--model paper ours]``
+
+Our model (``model=ours``: the proxy skinned to the body plus a ridge residual) is timed first,
+streaming and batched, on a synthetic skirt of ``--vertices`` with a random residual.
 
 Times the paper-sized network (widths at full size for 2048+ vertices) with random weights
 (speed does not depend on what the weights are) and output frames that follow the hips' tilt
@@ -26,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
+from core.body.shape import BodyShape, mannequin_skeleton
 from training.joint2coarse import (
     Joint2CoarseClip,
     Joint2CoarseConfig,
@@ -33,9 +37,11 @@ from training.joint2coarse import (
     predict_proxy,
     train_joint2coarse,
 )
-from training.joint2coarse.descriptor import joint2coarse_inputs
+from training.joint2coarse.body_model import BodyResidualModel, body_rig, motion_features
+from training.joint2coarse.config import MODELS
+from training.joint2coarse.descriptor import canonical_joint_order, joint2coarse_inputs
 from training.joint2coarse.model import Joint2CoarseNet
-from training.joint2coarse.synthetic import synthetic_clip, synthetic_walk
+from training.joint2coarse.synthetic import skirt_from_joints, synthetic_clip, synthetic_walk
 
 #: Streaming latency target of issue #6 (milliseconds per frame, median, 1 thread).
 TARGET_MS = 2.0
@@ -92,6 +98,10 @@ def main() -> None:
         help="shape encoder widths (decoder mirrors them); default: the paper's",
     )  # fmt: skip
     parser.add_argument(
+        "--model", nargs="+", default=["paper", "ours"], choices=MODELS,
+        help="models to time (ours: the skinned base and ridge residual, model=ours)",
+    )  # fmt: skip
+    parser.add_argument(
         "--train-steps", type=int, default=20,
         help="also time this many training steps per stage (0: skip)",
     )  # fmt: skip
@@ -103,6 +113,24 @@ def main() -> None:
     joints, root_rot = joint2coarse_inputs(synthetic_walk(args.frames, seed=0))
     print(f"{_load()} before; torch {torch.__version__}, {args.frames} frames per measurement")
     verdict = None
+    if "ours" in args.model:
+        net = _ours(base, args.vertices)
+        print(
+            f"== model=ours: Vc={net.n_vertices}, descriptor {net.descriptor_dim}, "
+            f"{net.arrays['coef'].shape[0]} residual features"
+        )
+        for threads in args.threads:
+            torch.set_num_threads(threads)
+            wall, cpu = time_stream(net, joints, root_rot, False)
+            print(f"  threads={threads} streaming: {_summary(wall, cpu)}, {_load()}")
+            if threads == 1:
+                ms = float(np.median(wall)) * 1e3
+                met = "MET" if ms < TARGET_MS else "NOT met"
+                print(f"  target {TARGET_MS} ms/frame (1 thread, streaming, median): {met}")
+            wall, cpu = time_batch(net, joints, root_rot, 256)
+            print(f"  threads={threads} batched (batch 256): {_summary(wall, cpu)}, {_load()}")
+    if "paper" not in args.model:
+        return
     for k in args.output_basis:
         config = replace(base, output_basis=k)
         torch.manual_seed(0)
@@ -146,6 +174,27 @@ def main() -> None:
             _time_training(
                 replace(base, output_basis=k), args.vertices, args.train_steps, args.threads[0]
             )
+
+
+def _ours(base: Joint2CoarseConfig, n_vertices: int) -> BodyResidualModel:
+    """Our model for a synthetic skirt of about ``n_vertices`` vertices, with a random residual
+    (speed does not depend on its values)."""
+    around = 100
+    rings = max(2, round(n_vertices / around))
+    skel = mannequin_skeleton()
+    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
+    skirt = skirt_from_joints(rest, np.eye(3)[None], rings, around)[0]
+    config = replace(base, model="ours")
+    weights, rest_joints, rest_vertices = body_rig(BodyShape(), skirt, config.skin_fade)
+    d = config.num_samples * 57
+    k = motion_features(np.zeros((1, d)), config.num_samples).shape[1]
+    rng = np.random.default_rng(0)
+    arrays = {
+        "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,
+        "feat_mean": np.zeros(k), "feat_std": np.ones(k),
+        "coef": rng.normal(0.0, 1e-3, (k + 1, 3 * len(skirt))),
+    }  # fmt: skip
+    return BodyResidualModel(config, d, arrays)
 
 
 def _time_training(base: Joint2CoarseConfig, n_vertices: int, steps: int, threads: int) -> None:

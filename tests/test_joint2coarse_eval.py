@@ -61,6 +61,9 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     for key in ("prediction", "prediction_pushed_out", "simulation"):
         assert 0.0 <= pen[key]["inside_percent"] <= 100.0 and pen[key]["max_mm"] >= 0.0
     assert pen["prediction_pushed_out"]["inside_percent"] == 0.0
+    # The smoke preset trains our model beside the paper's: both are scored.
+    assert report["model"] == "paper" and set(report["compare_error_mm"]) == {"ours"}
+    assert report["compare_error_mm"]["ours"]["mean_mm"] > 0
     ms = report["ms_per_frame"]
     assert ms["simulation"] > 0 and ms["prediction"] > 0 and ms["prediction_streaming"] > 0
     # Again: the simulation comes from the scratch cache, and so do the same figures.

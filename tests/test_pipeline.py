@@ -32,6 +32,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         "twirl-target",
         "cmu-01_01-target",
         "circle-walk-proxy",
+        "val-walk-proxy",
     }
     for name, sim in report["simulation"].items():
         assert sim["finite"], name
@@ -41,6 +42,18 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     j2c = report["joint2coarse"]
     assert set(j2c["motions"]) == {"twirl", "cmu-01_01"}
     assert j2c["extra_train_motions"] == ["circle-walk"]  # trained on two clips
+    # Three splits; the paper's model is the project's, ours trains beside it on the same ones.
+    assert j2c["splits"] == {
+        "train": ["dance", "circle-walk"], "validation": ["val-walk"],
+        "test": ["twirl", "cmu-01_01"],
+    }  # fmt: skip
+    assert j2c["model"] == "paper" and set(j2c["compare"]) == {"ours"}
+    for key, names in (("validation_motions", ["val-walk"]), ("motions", ["twirl", "cmu-01_01"])):
+        assert list(j2c[key]) == names and list(j2c["compare"]["ours"][key]) == names
+        for m in j2c[key].values():
+            assert m["simulation_penetration_mm"]["max"] >= 0.0
+            pushed, raw = m["with_push_out"]["penetration_mm"], m["penetration_mm"]
+            assert pushed["fraction"] <= raw["fraction"] and pushed["max"] <= raw["max"]
     for m in j2c["motions"].values():
         e = m["error_mm"]
         assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]

@@ -12,7 +12,9 @@ from core.fileio import atomic_open, write_json
 from core.project import RECORD_NAME, Project
 from training.pipeline import (
     PipelineConfig,
+    available_extra_motions,
     available_test_motions,
+    available_validation_motions,
     joint2coarse_config,
     renderer_config,
     stage_ablation,
@@ -61,7 +63,8 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     costs = [c["setup"]] * 3
     costs += [sim * config.train_motion.frames]
     costs += [target * config.train_motion.frames] if config.simulate_target else []
-    costs += [sim * m.frames for m in config.joint2coarse_extra]
+    costs += [sim * m.frames for m in available_extra_motions(config)]
+    costs += [sim * m.frames for m in available_validation_motions(config)]
     costs += [sim * m.frames for m in tests]
     if config.simulate_target:
         costs += [target * m.frames for m in tests]
@@ -188,7 +191,8 @@ def run_demo(
     tests = [m.name for m in available_test_motions(config)]
     train = config.train_motion.name
     sims = [(train, "proxy")] + ([(train, "target")] if config.simulate_target else [])
-    sims += [(m.name, "proxy") for m in config.joint2coarse_extra]
+    sims += [(m.name, "proxy") for m in available_extra_motions(config)]
+    sims += [(m.name, "proxy") for m in available_validation_motions(config)]
     sims += [(name, "proxy") for name in tests]
     if config.simulate_target:
         sims += [(name, "target") for name in tests]
@@ -262,6 +266,33 @@ def run_demo(
         f.write(report_markdown(report))
     log(f"done in {report['total_seconds'] / 60:.1f} min: {project.root / 'report.md'}")
     return report
+
+
+def _joint2coarse_splits_markdown(j: dict) -> list[str]:
+    """The splits, and every model's mean / p95 vertex error (mm) per validation and test
+    motion, side by side (the project's model first, then ``compare``)."""
+    splits = j.get("splits")
+    if not splits:
+        return []
+    lines = [f"- {k}: " + ", ".join(f"`{n}`" for n in v) for k, v in splits.items()]
+    models = {j.get("model", "paper"): j, **j.get("compare", {})}
+    lines += ["", "| split | motion | " + " | ".join(f"{m} mean / p95 (mm)" for m in models) + " |"]
+    lines.append("| --- | --- |" + " --- |" * len(models))
+    for split, key in (("validation", "validation_motions"), ("test", "motions")):
+        names = list(j.get(key, {}))
+        sums = {m: [0.0, 0.0] for m in models}
+        for name in names:
+            cells = []
+            for m, r in models.items():
+                e = r[key][name]["error_mm"]
+                sums[m][0] += e["mean_mm"] / len(names)
+                sums[m][1] += e["p95_mm"] / len(names)
+                cells.append(f"{e['mean_mm']:.1f} / {e['p95_mm']:.0f}")
+            lines.append(f"| {split} | `{name}` | " + " | ".join(cells) + " |")
+        if names:
+            cells = [f"{a:.1f} / {b:.0f}" for a, b in sums.values()]
+            lines.append(f"| {split} | **mean** | " + " | ".join(cells) + " |")
+    return [*lines, ""]
 
 
 def _stream_ms(m: dict) -> str:
@@ -460,10 +491,11 @@ def report_markdown(report: dict) -> str:
         "",
         "## Joint2Coarse: proxy from joints, against simulation",
         "",
-        f"Trained on `{j['train_motion']}`"
+        f"Model: `{j.get('model', 'paper')}`. Trained on `{j['train_motion']}`"
         + "".join(f" and `{m}`" for m in j.get("extra_train_motions", []))
         + "; held-out frames (validation) and unseen motions.",
         "",
+        *_joint2coarse_splits_markdown(j),
         "| data | mean (mm) | p95 (mm) | max (mm) |",
         "| --- | --- | --- | --- |",
     ]

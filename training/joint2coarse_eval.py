@@ -197,8 +197,15 @@ def evaluate_on_motion(
     start = time.perf_counter()
     pushed = predict_proxy(net, joints, root_rot, capsules=ends, radii=radii, source=source)
     push_ms = 1e3 * (time.perf_counter() - start) / len(pred) - batch_ms
+    compare = {}  # the models trained beside the project's (joint2coarse_compare)
+    for path in sorted(project.stage_dir("joint2coarse").glob("compare-*/joint2coarse.pt")):
+        other = load_model(path)
+        if motion.num_frames >= other.config.window:
+            pred_other = predict_proxy(other, joints, root_rot, source=source)
+            compare[other.config.model] = asdict(vertex_errors(pred_other, reference.positions))
     return {
         "project": str(project.root),
+        "model": net.config.model,
         "motion": source,
         "frames": int(len(pred)),
         "fps": float(motion.fps),
@@ -216,6 +223,7 @@ def evaluate_on_motion(
             "prediction_streaming": float(np.median(frame_ms)),
             "push_out": max(push_ms, 0.0),
         },
+        "compare_error_mm": compare,
         "simulation_cache": str(folder),
         "simulation_from_cache": cached,
     }
@@ -242,7 +250,7 @@ def format_report(report: dict) -> str:
         f"{'depth max mm':>13s} {'ms/frame':>9s}",
     ]
     rows = (
-        ("Joint2Coarse", e, p["prediction"], ms["prediction"]),
+        (f"Joint2Coarse ({report['model']})", e, p["prediction"], ms["prediction"]),
         ("Joint2Coarse, pushed out", q, p["prediction_pushed_out"],
          ms["prediction"] + ms["push_out"]),
         ("simulation", None, p["simulation"], ms["simulation"]),
@@ -255,6 +263,11 @@ def format_report(report: dict) -> str:
         )
         lines.append(
             f"{name:28s} {errs} {pen['inside_percent']:9.2f} {pen['max_mm']:13.1f} {t:9.2f}"
+        )
+    for model, err in report["compare_error_mm"].items():
+        lines.append(
+            f"{'(' + model + ' model, beside it)':28s} {err['mean_mm']:8.1f} {err['p95_mm']:8.1f} "
+            f"{err['max_mm']:8.1f}"
         )
     lines.append(
         f"streaming (one frame at a time): {ms['prediction_streaming']:.2f} ms/frame; simulation "

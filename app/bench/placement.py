@@ -169,6 +169,15 @@ def _proxies(project, motions: list[str], autoencoder: bool) -> dict[str, dict]:
     from training.pipeline import load_project_motion
 
     net = load_model(project.path("joint2coarse", "joint2coarse.pt")) if autoencoder else None
+    if net is not None and not hasattr(net, "shape_encoder"):  # ours: the paper's model beside it
+        paper = project.path("joint2coarse", "compare-paper/joint2coarse.pt")
+        if not paper.is_file():
+            raise InputError(
+                "the project's Joint2Coarse (model=ours) has no shape autoencoder and no paper "
+                "model beside it: pass --no-autoencoder",
+                paper,
+            )
+        net = load_model(paper)
     out = {}
     for name in motions:
         sim = load_cache(project.path(f"sim/{name}-proxy", "cache.npz")).positions

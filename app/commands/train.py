@@ -13,10 +13,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "joint2coarse",
         help="body motion -> coarse proxy, from the project's proxy simulation",
         description=(
-            "Train Joint2Coarse on the training motion's simulated proxy (resuming an "
-            "interrupted run), then predict and measure every test motion against its "
-            "simulation: per-vertex error (mean, 95th percentile, mm) and body penetration, "
-            "written to PROJECT/joint2coarse/report.json."
+            "Train Joint2Coarse on its training split's simulated proxies (resuming an "
+            "interrupted run), then predict and measure every validation and test motion "
+            "against its simulation: per-vertex error (mean, 95th percentile, mm) and body "
+            "penetration of the prediction and the simulation, written to "
+            "PROJECT/joint2coarse/report.json. --set model=paper|ours picks the model; the "
+            "project's joint2coarse_compare models train beside it on the same splits."
         ),
     )
     j.add_argument("project", help="project folder (made by dng demo)")
@@ -76,7 +78,8 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
 
     project, config = _config_with(args, "joint2coarse")
     report = stage_joint2coarse(project, config, print)
-    print(json.dumps(report["motions"], indent=1))
+    keys = ("model", "splits", "validation_motions", "motions", "compare")
+    print(json.dumps({k: report[k] for k in keys if k in report}, indent=1))
     return 0
 
 

@@ -9,6 +9,9 @@ from typing import ClassVar
 from core.errors import InputError
 from training.configs import PlainConfig
 
+#: The Joint2Coarse models :attr:`Joint2CoarseConfig.model` names.
+MODELS = ("paper", "ours")
+
 
 @dataclass(frozen=True)
 class Joint2CoarseConfig(PlainConfig):
@@ -19,6 +22,24 @@ class Joint2CoarseConfig(PlainConfig):
 
     kind: ClassVar[str] = "joint2coarse"
 
+    model: str = "paper"
+    """Which Joint2Coarse: ``paper`` (the paper's shape autoencoder and motion encoder, the
+    fields below) or ``ours`` (:mod:`training.joint2coarse.body_model`: the proxy skinned to the
+    body plus a ridge residual on the joints' history; it uses ``window``, ``stride``,
+    ``clamp_z``, ``ridge`` and ``skin_fade``, and trains in seconds)."""
+    ridge: float = 1.0
+    """``ours``: ridge penalty of the residual, per training frame, on z-scored features.
+    Chosen on the quick preset's validation motions (mean over them of the mean / p95 vertex
+    error, mm; ``dng train joint2coarse P --set ridge=R``, report ``validation_motions``):
+    0.1: 54.3 / 141, 1: 49.1 / 109, 10: 54.1 / 110. On an earlier library (14 clips, 4
+    validation motions) a residual in the heading frame gave 60.9 mm at 1 against 59.8 in the
+    hips' frame (kept), and 0.001: 106.5, 0.01: 85.7, 0.1: 72.6, 10: 60.2, 100: 64.8."""
+    skin_fade: float = 1.0
+    """``ours``: how the skinning fades down the garment: a vertex at relative height h in the
+    garment (1 at the top, 0 at the hem) keeps ``h ** skin_fade`` of the body's skinning
+    weights and follows the hips rigidly for the rest (0: skinned everywhere). On the quick
+    preset's validation motions (as ``ridge``, at ridge 1): 0: 53.0 / 124, 1: 49.1 / 109,
+    3: 49.1 / 110 mm."""
     window: int = 34
     """Frames of motion history the descriptor covers (current frame included)."""
     stride: int = 2
@@ -120,6 +141,14 @@ class Joint2CoarseConfig(PlainConfig):
             raise InputError(
                 f"joint2coarse config tilt_follow={self.tilt_follow!r} must be in [0, 1]"
             )
+        if self.model not in MODELS:
+            raise InputError(
+                f"joint2coarse config model={self.model!r}: choose from {', '.join(MODELS)}"
+            )
+        for name in ("ridge", "skin_fade"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"joint2coarse config {name}={v!r} must be a number >= 0")
         if not 0.0 <= self.dropout < 1.0:
             raise InputError(f"joint2coarse config dropout={self.dropout!r} must be in [0, 1)")
         if not 0.0 <= self.val_fraction < 1.0:

@@ -11,6 +11,7 @@ from torch import nn
 
 from core.errors import InputError
 from core.fileio import atomic_path
+from training.joint2coarse.body_model import body_model_from_state
 from training.joint2coarse.config import Joint2CoarseConfig
 
 #: Format tag of a saved model file.
@@ -184,7 +185,8 @@ class Joint2CoarseNet(nn.Module):
 
 
 def save_model(net: Joint2CoarseNet, path: str | os.PathLike) -> None:
-    """Write an inference model file (config, sizes, weights, statistics), atomically."""
+    """Write an inference model file (config, sizes, weights, statistics), atomically; ours
+    (a :class:`~training.joint2coarse.body_model.BodyResidualModel`) too."""
     payload = {
         "format": MODEL_FORMAT,
         "config": net.config.to_dict(),
@@ -224,8 +226,15 @@ def stored_config(payload: dict, path: str | os.PathLike | None = None) -> Joint
 
 
 def net_from_payload(payload: dict, path: str | os.PathLike | None = None) -> Joint2CoarseNet:
-    """Build the network a saved payload (model file or training checkpoint) describes."""
+    """Build the network a saved payload (model file or training checkpoint) describes (ours,
+    ``config.model == "ours"``, comes back as a
+    :class:`~training.joint2coarse.body_model.BodyResidualModel`)."""
     config = stored_config(payload, path)
+    if config.model == "ours":
+        state = payload.get("state_dict")
+        if not isinstance(state, dict):
+            raise InputError("Joint2Coarse model file has no weights", path)
+        return body_model_from_state(config, int(payload["descriptor_dim"]), state, path)
     net = Joint2CoarseNet(config, int(payload["n_vertices"]), int(payload["descriptor_dim"]))
     state = payload["state_dict"]
     if isinstance(state, dict) and "follow" not in state:  # written before the buffer existed

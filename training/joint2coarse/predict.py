@@ -7,6 +7,7 @@ import torch
 from torch import nn
 
 from core.errors import InputError
+from training.joint2coarse.body_model import BodyResidualModel
 from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules
 from training.joint2coarse.descriptor import (
     NUM_JOINTS,
@@ -23,6 +24,8 @@ from training.joint2coarse.model import Joint2CoarseNet
 
 def _run_net(net: Joint2CoarseNet, desc: np.ndarray) -> np.ndarray:
     """(B, D) float32 descriptors -> (B, Vc, 3) float32 output-frame vertices, eval mode."""
+    if isinstance(net, BodyResidualModel):
+        return net.predict(desc)
     was_training = net.training
     if was_training:
         net.eval()
@@ -107,6 +110,8 @@ def reconstruct_proxy(
     -------
     (T, Vc, 3) float32 world positions.
     """
+    if isinstance(net, BodyResidualModel):
+        raise InputError("our Joint2Coarse has no shape autoencoder to reconstruct with")
     proxy = np.asarray(proxy)
     t = check_joint_inputs(joints, root_rotations)
     if proxy.shape != (t, net.n_vertices, 3):
@@ -197,6 +202,16 @@ class FrozenForward:
         return torch.minimum(torch.maximum(y, self.out_low, out=y), self.out_high, out=y)
 
 
+class _BodyForward:
+    """:class:`FrozenForward`'s call for our model: (B, D) float32 tensor -> (B, Vc * 3)."""
+
+    def __init__(self, net: BodyResidualModel):
+        self.net = net
+
+    def __call__(self, desc: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(self.net.predict(desc.numpy()).reshape(len(desc), -1))
+
+
 def _one_row_layout(weight: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
     """An (in, out) matrix for ``addmm(bias, x, weight)``, copied to ``dtype`` and laid out the
     way a one-row product runs fastest on CPU (measured on AVX2, torch 2.13): row-major for
@@ -236,7 +251,10 @@ class Joint2CoarseStream:
         bfloat16: bool = False,
     ):
         self.net = net
-        self.forward = FrozenForward(net, torch.bfloat16 if bfloat16 else torch.float32)
+        if isinstance(net, BodyResidualModel):  # already plain matrix products
+            self.forward = _BodyForward(net)
+        else:
+            self.forward = FrozenForward(net, torch.bfloat16 if bfloat16 else torch.float32)
         self._follow = net.follow_weights()
         cfg = net.config
         self._stride = cfg.stride

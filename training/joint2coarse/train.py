@@ -20,7 +20,7 @@ import contextlib
 import hashlib
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +29,7 @@ import torch
 from core.errors import InputError
 from core.fileio import atomic_path
 from training.csvlog import append_rows, truncate_rows
+from training.joint2coarse.body_model import fit_body_residual
 from training.joint2coarse.config import Joint2CoarseConfig
 from training.joint2coarse.descriptor import (
     check_joint_inputs,
@@ -417,6 +418,7 @@ def train_joint2coarse(
     *,
     progress: bool = True,
     callback: Callable[[int, str, float], None] | None = None,
+    rig: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> Joint2CoarseTrainResult:
     """Train Joint2Coarse on (motion, proxy cache) pairs, resuming from ``out_dir`` if possible.
 
@@ -434,6 +436,9 @@ def train_joint2coarse(
     callback : callable(step, stage, loss), optional
         Called after every optimisation step (the GUI's hook; raising from it stops the run,
         which then resumes from the last checkpoint).
+    rig : (weights, rest_joints, rest_vertices), optional
+        :func:`~training.joint2coarse.body_model.body_rig` of the proxy; required by
+        ``config.model == "ours"`` (fitted in closed form: no steps, no checkpoint).
 
     Returns
     -------
@@ -446,6 +451,8 @@ def train_joint2coarse(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = config or Joint2CoarseConfig()
+    if cfg.model == "ours":
+        return _train_ours(clips, out_dir, cfg, rig)
     data = prepare_data(clips, cfg)
     # Our own RNG stream: initial weights, dropout and shuffling never touch the caller's.
     with torch.random.fork_rng(devices=[]):
@@ -506,4 +513,40 @@ def train_joint2coarse(
         stage_errors=errors,
         baseline=baseline,
         resumed_at_step=tr.resumed_at_step,
+    )
+
+
+def _train_ours(
+    clips: Sequence[Joint2CoarseClip],
+    out_dir: Path,
+    cfg: Joint2CoarseConfig,
+    rig: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+) -> Joint2CoarseTrainResult:
+    """Fit our model (:func:`fit_body_residual`) on the heading-frame training frames; the log
+    gets one row with the held-out frames' error."""
+    if rig is None:
+        raise InputError("our Joint2Coarse (model=ours) needs the proxy's body rig (body_rig)")
+    data = prepare_data(clips, replace(cfg, tilt_follow=0.0))  # ours predicts in the heading frame
+    model = fit_body_residual(cfg, data.train_desc, data.train_verts, rig)
+    model_path, log_path = out_dir / MODEL_NAME, out_dir / LOG_NAME
+    save_model(model, model_path)
+    errors, baseline = {}, None
+    row = [0, "ridge", 0, "", "", ""]
+    if len(data.val_verts):
+        pred = model.predict(data.val_desc).reshape(len(data.val_desc), -1)
+        errors["ridge"] = _errors_mm(pred, data.val_verts)
+        row[-1] = f"{errors['ridge'].mean_mm:.4f}"
+        mean = data.train_verts.mean(0, keepdims=True)
+        baseline = _errors_mm(np.broadcast_to(mean, data.val_verts.shape), data.val_verts)
+    with contextlib.suppress(FileNotFoundError):
+        log_path.unlink()
+    append_rows(log_path, LOG_COLUMNS, [row])
+    return Joint2CoarseTrainResult(
+        net=model,
+        model_path=model_path,
+        log_path=log_path,
+        checkpoint_path=out_dir / CHECKPOINT_NAME,
+        stage_errors=errors,
+        baseline=baseline,
+        resumed_at_step=0,
     )

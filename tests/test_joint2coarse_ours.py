@@ -1,0 +1,133 @@
+"""Our Joint2Coarse (model=ours): the body-driven base, the ridge residual, save and load, the
+splits of the training library."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.errors import InputError
+from tests.conftest import assert_close
+from training.joint2coarse import (
+    Joint2CoarseClip,
+    Joint2CoarseConfig,
+    Joint2CoarseStream,
+    load_model,
+    motion_descriptors,
+    predict_proxy,
+    train_joint2coarse,
+    vertex_errors,
+)
+from training.joint2coarse.body_model import (
+    BodyResidualModel,
+    body_rig,
+    bone_transforms,
+    motion_features,
+)
+from training.joint2coarse.descriptor import canonical_joint_order
+from training.joint2coarse.synthetic import skirt_from_joints, synthetic_clip
+
+OURS = Joint2CoarseConfig(model="ours", ridge=1e-4)
+
+
+def _rest_skirt() -> np.ndarray:
+    """The synthetic skirt in the rest pose, world (the rig's rest proxy)."""
+    skel = mannequin_skeleton()
+    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
+    return skirt_from_joints(rest, np.eye(3)[None])[0]
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return body_rig(BodyShape(), _rest_skirt(), fade=1.0)
+
+
+@pytest.fixture(scope="module")
+def clips():
+    return [Joint2CoarseClip(*synthetic_clip(240, s), name=f"skirt-{s}") for s in (0, 1)]
+
+
+@pytest.fixture(scope="module")
+def trained(clips, rig, tmp_path_factory):
+    return train_joint2coarse(clips, tmp_path_factory.mktemp("ours"), OURS, rig=rig)
+
+
+def test_rig_weights_fade_from_the_body_to_the_hips(rig):
+    weights, rest_joints, rest_vertices = rig
+    v = len(_rest_skirt())
+    assert weights.shape == (v, 20) and rest_joints.shape == (20, 3)
+    assert rest_vertices.shape == (v, 3)
+    assert (weights >= 0).all() and np.allclose(weights.sum(1), 1.0, atol=1e-5)
+    assert np.allclose(rest_joints[0], 0.0)  # relative to the rest root
+    height = rest_vertices[:, 1]
+    hem = height <= height.min() + 1e-6
+    assert_close(weights[hem, 0], np.ones(hem.sum()), atol=1e-6, what="hem follows the hips")
+    # Fully skinned (fade 0): the hem takes the legs' weights too, never the arms'.
+    full = body_rig(BodyShape(), _rest_skirt(), fade=0.0)[0]
+    skel = mannequin_skeleton()
+    names = canonical_joint_order(skel.rest_positions()[None], skel.names)  # order check only
+    assert names.shape == (1, 20, 3)
+    assert full[hem][:, 1:].sum() > 0.1 * hem.sum()
+    with pytest.raises(InputError):
+        body_rig(BodyShape(), np.zeros((0, 3)), 1.0)
+
+
+def test_base_is_the_rest_proxy_at_rest_and_moves_rigidly_with_the_body(rig):
+    weights, rest_joints, rest_vertices = rig
+    pose = rest_joints[None, 1:].astype(np.float64)
+    m = bone_transforms(pose, rest_joints)
+    assert_close(m[..., :3], np.broadcast_to(np.eye(3), m[..., :3].shape), atol=1e-9)
+    # The whole body pitched forward 20 degrees about the hips: every bone turns with it.
+    a = np.radians(20.0)
+    r = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    m = bone_transforms(pose @ r.T, rest_joints)
+    assert_close(m[0, :, :, :3], np.broadcast_to(r, (20, 3, 3)), atol=1e-6, what="rotations")
+    k = motion_features(np.zeros((1, 17 * 57)), 17).shape[1]
+    arrays = {
+        "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,
+        "feat_mean": np.zeros(k), "feat_std": np.ones(k), "coef": np.zeros((k + 1, weights.size // 20 * 3)),
+    }  # fmt: skip
+    model = BodyResidualModel(OURS, 17 * 57, arrays)
+    desc = np.tile(pose.reshape(1, 1, -1), (1, 17, 1)).reshape(1, -1)
+    assert_close(model.base(model.transforms(desc))[0], rest_vertices, atol=1e-5, what="rest")
+    desc = np.tile((pose @ r.T).reshape(1, 1, -1), (1, 17, 1)).reshape(1, -1)
+    pitched = model.base(model.transforms(desc))[0]
+    assert_close(pitched, rest_vertices @ r.T, atol=1e-5, what="pitched base")
+
+
+def test_ours_fits_the_synthetic_skirt_and_holds_on_an_unseen_walk(trained, clips):
+    res = trained
+    assert isinstance(res.net, BodyResidualModel) and res.model_path.is_file()
+    base = res.baseline.mean_mm
+    assert res.stage_errors["ridge"].mean_mm < 0.2 * base
+    joints, root_rot, skirt = synthetic_clip(200, 7)  # a walk never trained on
+    pred = predict_proxy(res.net, joints, root_rot)
+    assert pred.shape == skirt.shape and pred.dtype == np.float32 and np.isfinite(pred).all()
+    assert vertex_errors(pred, skirt).mean_mm < 0.2 * base
+
+
+def test_ours_saves_loads_and_streams_like_the_batch(trained, clips, tmp_path):
+    net = load_model(trained.model_path)
+    assert isinstance(net, BodyResidualModel) and net.config == OURS
+    clip = clips[1]
+    pred = predict_proxy(net, clip.joints, clip.root_rotations)
+    assert_close(pred, predict_proxy(trained.net, clip.joints, clip.root_rotations), what="reload")
+    stream = Joint2CoarseStream(net)
+    for t in range(40):
+        frame = stream.push(clip.joints[t], clip.root_rotations[t])
+        assert_close(frame, pred[t], atol=1e-4, what=f"stream frame {t}")
+
+
+def test_ours_stays_finite_on_extreme_motion_and_needs_a_rig(trained, clips, tmp_path):
+    clip = clips[0]
+    rng = np.random.default_rng(0)
+    wild = clip.joints + rng.normal(0, 0.5, clip.joints.shape).astype(np.float32)
+    pred = predict_proxy(trained.net, wild, clip.root_rotations)
+    assert np.isfinite(pred).all()
+    desc = motion_descriptors(wild, clip.root_rotations, OURS.window, OURS.stride)[0]
+    assert np.isfinite(motion_features(desc, OURS.num_samples)).all()
+    with pytest.raises(InputError, match="rig"):
+        train_joint2coarse(clips, tmp_path, OURS)
+    with pytest.raises(InputError):
+        Joint2CoarseConfig(model="graph")

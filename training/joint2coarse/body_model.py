@@ -1,0 +1,307 @@
+"""Our Joint2Coarse (``model="ours"``): a body-driven base plus a learnt dynamic residual.
+
+The paper's network maps the motion descriptor to one global shape code; on a motion unlike its
+training clips the code lands somewhere else and the whole garment with it. Ours predicts in
+the heading frame, as the sum of
+
+1. a **body-driven base**: the rest proxy skinned to the body by linear blending, with weights
+   copied from the mannequin's own skinning (torso and legs only), fading with depth down the
+   garment (``skin_fade``) towards the hips' rigid frame. The bones' rotations come from the
+   joint positions of the current frame (the descriptor's first sample): the hips' from the
+   hips, legs and spine (Kabsch), every other bone's as the hips' rotation followed by the
+   swing from there to where the bone points now. So a new pose moves the waistband and the
+   front of the skirt with the legs, whatever the training clips were;
+2. a **residual** linear in features of the joints' history: the current pose, the joints'
+   velocities and accelerations over several lags (all in the heading frame, so they do not
+   depend on where the body stands or faces), and the square terms of the pelvis's turning rate
+   and speed that drive a skirt's flare (the centrifugal push grows with the square of the
+   turning rate). It is predicted in the hips' frame (so it tilts with the pelvis) and fitted
+   in closed form (ridge regression, ``ridge``) to the simulated proxy minus the base.
+
+Both parts are a few matrix products per frame (no network), so it streams in well under a
+millisecond for a 2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from core.body.shape import BodyShape
+from core.errors import InputError
+from training.joint2coarse.config import Joint2CoarseConfig
+from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS
+
+#: Joints the garment may be skinned to: the torso and the legs (not the arms: in the A-pose
+#: the hands hang beside a skirt and would otherwise carry its sides).
+SKIN_JOINTS = (
+    "Hips", "Spine", "Spine1", "Spine2",
+    "LeftUpLeg", "LeftLeg", "LeftFoot", "RightUpLeg", "RightLeg", "RightFoot",
+)  # fmt: skip
+#: The child each bone's direction points to (its swing is the bone's rotation).
+_CHILD = {
+    "Spine": "Spine1", "Spine1": "Spine2", "Spine2": "Neck",
+    "LeftUpLeg": "LeftLeg", "LeftLeg": "LeftFoot", "RightUpLeg": "RightLeg",
+    "RightLeg": "RightFoot",
+}  # fmt: skip
+#: Descriptor samples (of ``stride`` frames) over which velocities and accelerations are taken.
+VELOCITY_LAGS = (1, 3, 6, 12)
+ACCELERATION_LAGS = (1, 3, 6)
+#: Joint index in the descriptor's 19 joints (the root is not in it: it is the origin).
+_DESC = {name: i for i, name in enumerate(JOINT2COARSE_JOINTS[1:])}
+
+
+def body_rig(shape: BodyShape, rest_proxy: np.ndarray, fade: float) -> tuple[np.ndarray, ...]:
+    """Skinning of the rest proxy to the mannequin, faded towards the hips down the garment.
+
+    Parameters
+    ----------
+    shape : BodyShape
+    rest_proxy : (V, 3) float, the proxy in the rest pose (``proxy/positions.obj``)
+    fade : float >= 0
+        Vertex v keeps ``a_v = h_v ** fade`` of the body's weights and moves rigidly with the
+        hips for the rest, ``h_v`` its height in the garment (1 at the top, 0 at the hem); 0
+        skins every vertex fully.
+
+    Returns
+    -------
+    weights : (V, 20) float32, rows summing to 1, columns in ``JOINT2COARSE_JOINTS`` order
+    rest_joints : (20, 3) float32, rest joint positions relative to the rest root
+    rest_vertices : (V, 3) float32, the rest proxy relative to the rest root
+    """
+    from scipy.spatial import cKDTree
+
+    from core.body.mannequin import make_body
+
+    v = np.asarray(rest_proxy, np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0 or not np.isfinite(v).all():
+        raise InputError(f"rest proxy must be a finite (V, 3) array, got {v.shape}")
+    body = make_body(shape)
+    names = list(body.skeleton.names)
+    keep = np.array([n in SKIN_JOINTS for n in names])
+    _, nearest = cKDTree(body.vertices).query(v, k=4)
+    w = body.weights[nearest].mean(axis=1) * keep  # (V, J) mannequin order
+    hips = names.index("Hips")
+    w[w.sum(1) <= 1e-6, hips] = 1.0
+    w /= w.sum(1, keepdims=True)
+    span = max(v[:, 1].max() - v[:, 1].min(), 1e-9)
+    a = ((v[:, 1] - v[:, 1].min()) / span) ** fade
+    w = a[:, None] * w
+    w[:, hips] += 1.0 - a
+    rest = body.skeleton.rest_positions().astype(np.float64)
+    order = [names.index(n) for n in JOINT2COARSE_JOINTS]
+    root = rest[hips]
+    return (
+        w[:, order].astype(np.float32),
+        (rest[order] - root).astype(np.float32),
+        (v - root).astype(np.float32),
+    )
+
+
+def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Minimal rotations taking unit vectors a to b, (..., 3) -> (..., 3, 3) (Rodrigues; a and
+    b never opposite for the bones it is used on: clamped there)."""
+    v = np.cross(a, b)
+    c = np.sum(a * b, -1)
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k -= np.swapaxes(k, -1, -2)
+    return np.eye(3) + k + (k @ k) / np.maximum(1.0 + c, 1e-3)[..., None, None]
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-9)
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rotations (B, 3, 3) best taking point sets src (P, 3) onto dst (B, P, 3) (no centring:
+    both are relative to the hips)."""
+    h = np.einsum("pi,bpj->bij", src, dst)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.matmul(np.swapaxes(vt, 1, 2), np.swapaxes(u, 1, 2))))
+    fix = np.ones((len(dst), 3))
+    fix[:, 2] = d
+    return np.matmul(np.swapaxes(vt, 1, 2) * fix[:, None, :], np.swapaxes(u, 1, 2))
+
+
+def bone_transforms(pose: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
+    """Per-joint rigid transforms taking rest points to the current pose, heading frame.
+
+    Parameters
+    ----------
+    pose : (B, 19, 3) float, the descriptor's first sample (canonical joints, root at origin)
+    rest_joints : (20, 3) float, :func:`body_rig`
+
+    Returns
+    -------
+    (B, 20, 3, 4) float64: ``x -> M[:, :3] @ x + M[:, 3]``.
+    """
+    b = len(pose)
+    cur = np.concatenate([np.zeros((b, 1, 3)), np.asarray(pose, np.float64)], axis=1)
+    rest = np.asarray(rest_joints, np.float64)
+    ix = {n: i for i, n in enumerate(JOINT2COARSE_JOINTS)}
+    anchors = [ix[n] for n in ("LeftUpLeg", "RightUpLeg", "Spine", "Spine1")]
+    hips = _kabsch(rest[anchors], cur[:, anchors])  # (B, 3, 3)
+    rot = np.repeat(hips[:, None], len(ix), axis=1)  # joints the garment is not skinned to
+    j = [ix[n] for n in _CHILD]
+    c = [ix[n] for n in _CHILD.values()]
+    turned = np.matmul(_unit(rest[c] - rest[j]), np.swapaxes(hips, 1, 2))  # (B, n, 3)
+    rot[:, j] = np.matmul(_swing(turned, _unit(cur[:, c] - cur[:, j])), hips[:, None])
+    for foot, leg in (("LeftFoot", "LeftLeg"), ("RightFoot", "RightLeg")):
+        rot[:, ix[foot]] = rot[:, ix[leg]]
+    out = np.empty((b, len(ix), 3, 4))
+    out[..., :3] = rot
+    out[..., 3] = cur - np.einsum("bjik,jk->bji", rot, rest)
+    return out
+
+
+def motion_features(desc: np.ndarray, num_samples: int) -> np.ndarray:
+    """The residual's inputs from descriptors (see the module docstring).
+
+    Parameters
+    ----------
+    desc : (B, K * 57) float, :func:`~training.joint2coarse.descriptor.motion_descriptors`
+    num_samples : int, K
+
+    Returns
+    -------
+    (B, F) float64
+    """
+    x = np.asarray(desc, np.float64).reshape(len(desc), num_samples, 19, 3)
+    parts = [x[:, 0].reshape(len(x), -1)]
+    vel = [k for k in VELOCITY_LAGS if k < num_samples]
+    acc = [k for k in ACCELERATION_LAGS if 2 * k < num_samples]
+    parts += [((x[:, 0] - x[:, k]) / k).reshape(len(x), -1) for k in vel]
+    parts += [((x[:, 0] - 2 * x[:, k] + x[:, 2 * k]) / k**2).reshape(len(x), -1) for k in acc]
+    hip_line = x[:, :, _DESC["LeftUpLeg"]] - x[:, :, _DESC["RightUpLeg"]]  # (B, K, 3)
+    angle = np.arctan2(-hip_line[..., 2], hip_line[..., 0])
+    centre = 0.5 * (x[:, :, _DESC["LeftUpLeg"]] + x[:, :, _DESC["RightUpLeg"]])
+    for k in vel:
+        w = np.angle(np.exp(1j * (angle[:, 0] - angle[:, k]))) / k  # turning rate, rad/sample
+        vx, vz = ((centre[:, 0] - centre[:, k]) / k)[:, [0, 2]].T
+        parts.append(np.stack([w * w, w * vx, w * vz, vx * vx, vz * vz, vx * vz], -1))
+    return np.concatenate(parts, axis=1)
+
+
+class BodyResidualModel:
+    """Our Joint2Coarse: :func:`bone_transforms` skinning + ridge residual (module docstring).
+
+    Quacks like :class:`~training.joint2coarse.model.Joint2CoarseNet` where prediction needs it
+    (``config``, ``n_vertices``, ``descriptor_dim``, :meth:`follow_weights`, :meth:`predict`):
+    its output frame is the heading frame (no per-vertex tilt).
+
+    Attributes (arrays float32)
+    ----------
+    weights : (V, 20), rest_joints : (20, 3), rest_vertices : (V, 3)
+        :func:`body_rig`.
+    feat_mean, feat_std : (F,)
+        Normalisation of :func:`motion_features`.
+    coef : (F + 1, V * 3)
+        Residual = ``[clamp(z), 1] @ coef``.
+    """
+
+    def __init__(self, config: Joint2CoarseConfig, descriptor_dim: int, arrays: dict):
+        self.config = config
+        self.descriptor_dim = descriptor_dim
+        self.arrays = {k: np.asarray(v, np.float32) for k, v in arrays.items()}
+        self.n_vertices = len(self.arrays["weights"])
+        self.training = False
+        self._skin: tuple[np.ndarray, np.ndarray] | None = None  # built on first use
+
+    def follow_weights(self) -> None:
+        return None
+
+    def eval(self) -> BodyResidualModel:
+        return self
+
+    def transforms(self, desc: np.ndarray) -> np.ndarray:
+        """(B, D) descriptors -> (B, 20, 3, 4) float64 :func:`bone_transforms` of each frame."""
+        pose = np.asarray(desc, np.float64)[:, :57].reshape(-1, 19, 3)
+        return bone_transforms(pose, self.arrays["rest_joints"])
+
+    def base(self, transforms: np.ndarray) -> np.ndarray:
+        """(B, 20, 3, 4) :meth:`transforms` -> (B, V, 3) float32 skinned rest proxy, heading
+        frame.
+
+        Linear blend skinning as one product: ``[w_vj x_v, w_vj]`` over the joints with any
+        weight (V, 4 S) times the stacked ``[R_j^T; t_j]`` (4 S, 3) of each frame.
+        """
+        if self._skin is None:
+            w = self.arrays["weights"]
+            used = np.flatnonzero(w.max(0) > 0)
+            x = np.concatenate([self.arrays["rest_vertices"], np.ones((len(w), 1))], axis=1)
+            skin = (w[:, used, None] * x[:, None, :]).reshape(len(w), -1)
+            self._skin = (used, skin.astype(np.float32))
+        used, skin = self._skin
+        m = transforms[:, used]  # (B, S, 3, 4)
+        stacked = np.swapaxes(m, -1, -2).reshape(len(m), -1, 3).astype(np.float32)
+        return np.matmul(skin, stacked)
+
+    def features(self, desc: np.ndarray) -> np.ndarray:
+        """(B, D) -> (B, F + 1) normalised, clamped features and a 1 for the bias."""
+        a, c = self.arrays, self.config.clamp_z
+        z = (motion_features(desc, self.config.num_samples) - a["feat_mean"]) / a["feat_std"]
+        return np.concatenate([np.clip(z, -c, c), np.ones((len(z), 1))], axis=1)
+
+    def predict(self, desc: np.ndarray) -> np.ndarray:
+        """(B, D) float descriptors -> (B, V, 3) float32 heading-frame vertices: the base plus
+        the residual, turned from the hips' frame into the heading frame."""
+        desc = np.asarray(desc, np.float64)
+        if desc.ndim != 2 or desc.shape[1] != self.descriptor_dim:
+            raise InputError(f"descriptors must be (B, {self.descriptor_dim}), got {desc.shape}")
+        m = self.transforms(desc)
+        x = self.features(desc).astype(np.float32)
+        residual = (x @ self.arrays["coef"]).reshape(len(desc), -1, 3)
+        hips_t = np.swapaxes(m[:, 0, :, :3], 1, 2).astype(np.float32)  # row vectors: r R^T
+        return self.base(m) + np.matmul(residual, hips_t)
+
+    def state_dict(self) -> dict:
+        return {k: torch.from_numpy(v.copy()) for k, v in self.arrays.items()}
+
+
+def fit_body_residual(
+    config: Joint2CoarseConfig,
+    desc: np.ndarray,
+    verts: np.ndarray,
+    rig: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> BodyResidualModel:
+    """Fit the residual in closed form.
+
+    Parameters
+    ----------
+    desc : (N, D) float32 training descriptors
+    verts : (N, V * 3) float32 training proxies in the heading frame
+    rig : :func:`body_rig`'s (weights, rest_joints, rest_vertices)
+    """
+    weights, rest_joints, rest_vertices = rig
+    if len(weights) * 3 != verts.shape[1]:
+        raise InputError(
+            f"the rig has {len(weights)} vertices, the training proxies {verts.shape[1] // 3}"
+        )
+    feats = motion_features(desc, config.num_samples)
+    mean, std = feats.mean(0), np.maximum(feats.std(0), 1e-6)
+    arrays = {
+        "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,
+        "feat_mean": mean, "feat_std": std, "coef": np.zeros((feats.shape[1] + 1, verts.shape[1])),
+    }  # fmt: skip
+    model = BodyResidualModel(config, desc.shape[1], arrays)
+    x = model.features(desc)
+    m = model.transforms(desc)
+    y = np.asarray(verts, np.float64).reshape(len(desc), -1, 3) - model.base(m)
+    y = np.matmul(y, m[:, 0, :, :3]).reshape(len(desc), -1)  # into the hips' frame: R^T y
+    reg = config.ridge * len(x) * np.eye(x.shape[1])
+    reg[-1, -1] = 0.0  # the bias is not shrunk
+    coef = np.linalg.solve(x.T @ x + reg, x.T @ y)
+    model.arrays["coef"] = coef.astype(np.float32)
+    return model
+
+
+def body_model_from_state(
+    config: Joint2CoarseConfig, descriptor_dim: int, state: dict, path=None
+) -> BodyResidualModel:
+    """Rebuild a saved :class:`BodyResidualModel` (its ``state_dict``)."""
+    names = ("weights", "rest_joints", "rest_vertices", "feat_mean", "feat_std", "coef")
+    missing = [n for n in names if n not in state]
+    if missing:
+        raise InputError(f"Joint2Coarse model file lacks {missing}", path)
+    return BodyResidualModel(config, descriptor_dim, {n: state[n].numpy() for n in names})
