@@ -59,7 +59,9 @@ class MotionSpec:
     amplitude: float = 1.0
     """... with its joint rotation angles scaled by this ..."""
     heading_deg: float = 0.0
-    """... and turned by this many degrees about the vertical: a training-library variation."""
+    """... turned by this many degrees about the vertical ..."""
+    turn_deg_s: float = 0.0
+    """... and turning at this many degrees per second (a spin): a training-library variation."""
 
 
 @dataclass(frozen=True)
@@ -87,8 +89,12 @@ class PipelineConfig:
     """Texture size the proxy's UV atlas is packed for."""
     fabric: str = "cotton"
     """Fabric preset of the simulation (``core.sim.config``)."""
-    sim_substeps: int = 2
-    """Simulation substeps per frame at 30 fps."""
+    sim_substeps: int = 8
+    """Simulation substeps per frame at 30 fps ..."""
+    sim_iterations: int = 16
+    """... and solver iterations per substep: 8 x 16 is ``core.sim.config.QUALITY``
+    ``medium``, about the old 2 x 16's cost since each linear solve is one launch (``final``,
+    16 x 32, is the converged one: a twirl flares; about 4x the cost). See ``dng bench sim``."""
     simulate_target: bool = True
     """Make the detailed target's motion too (needed for ground-truth images)."""
     target_mode: str = "embed"
@@ -197,12 +203,13 @@ CMU_0103_CLIP = CMU_CLIP.with_name("01_03.bvh")
 BOXING_CLIP = CMU_CLIP.with_name("Boxing_Toes.bvh")
 #: Joint2Coarse's training library beyond the quick preset's four clips: the procedural kinds
 #: varied in seed, speed, amplitude and heading (never the twirl: a test kind), and windows of
-#: real capture (never CMU 01_01: a test clip). 850 frames in 6 clips: a simulated proxy clip
+#: real capture (never CMU 01_01: a test clip). 900 frames in 6 clips: a simulated proxy clip
 #: costs about 7.6 s (lead-in, set-up) plus 57 ms a frame on 2 cores (the quick preset's
-#: circle-walk, 300 frames, 24.8 s; twirl, 150 frames, 16.2 s), about 1.6 min in all.
+#: circle-walk, 300 frames, 24.8 s; twirl, 150 frames, 16.2 s), about 1.6 min in all. Turns
+#: are allowed (``turn_deg_s``: an idle spun at 300 degrees a second), the twirl is not.
 LIBRARY_TRAIN: tuple[MotionSpec, ...] = (
     MotionSpec("dance-varied", "dance", 150, seed=6, speed=1.3, amplitude=1.2, heading_deg=90.0),
-    MotionSpec("walk-fast", "walk", 100, seed=8, speed=1.6, heading_deg=-45.0),
+    MotionSpec("idle-spin", "idle", 150, seed=8, amplitude=1.3, turn_deg_s=300.0),
     *(
         MotionSpec(f"cmu-01_03-{s:02.0f}", "file", 150, path=str(CMU_0103_CLIP), start_s=s)
         for s in (3.0, 18.0)
@@ -214,7 +221,16 @@ LIBRARY_TRAIN: tuple[MotionSpec, ...] = (
 )
 #: Joint2Coarse's validation motions, what every choice is made on: 300 frames, about 0.7 min.
 LIBRARY_VALIDATION: tuple[MotionSpec, ...] = (
-    MotionSpec("val-dance", "dance", 100, seed=20, speed=0.85, amplitude=1.15, heading_deg=-60.0),
+    MotionSpec(
+        "val-dance-spin",
+        "dance",
+        100,
+        seed=20,
+        speed=0.85,
+        amplitude=1.15,
+        heading_deg=-60.0,
+        turn_deg_s=-240.0,
+    ),
     MotionSpec("val-cmu-01_03", "file", 100, path=str(CMU_0103_CLIP), start_s=33.0),
     MotionSpec("val-boxing", "file", 100, path=str(BOXING_CLIP), start_s=10.0),
 )
@@ -280,6 +296,8 @@ PRESETS: dict[str, PipelineConfig] = {
             MotionSpec("cmu-01_01", "file", 300, path=str(CMU_CLIP), start_s=2.0),
         ),
         proxy_verts=2000,
+        sim_substeps=16,
+        sim_iterations=32,
         target_mode="simulate",
         views_per_frame=10,
         frame_stride=1,
@@ -382,9 +400,10 @@ def _make_motion(spec: MotionSpec, config: PipelineConfig):
             )
         positions = canonical_positions(source)[first : first + frames]
         motion = retarget(positions, config.fps, config.body, name=spec.name)
-    if (spec.speed, spec.amplitude, spec.heading_deg) == (1.0, 1.0, 0.0):
+    change = (spec.speed, spec.amplitude, spec.heading_deg, spec.turn_deg_s)
+    if change == (1.0, 1.0, 0.0, 0.0):
         return motion
-    varied = vary_motion(motion, spec.speed, spec.amplitude, spec.heading_deg)
+    varied = vary_motion(motion, *change)
     return replace(
         varied,
         rotations=varied.rotations[: spec.frames],
@@ -519,7 +538,9 @@ def sim_config(config: PipelineConfig):
     project, and ``dng eval joint2coarse``'s, runs with these."""
     from core.sim import SimConfig
 
-    return SimConfig(fabric=config.fabric, substeps=config.sim_substeps)
+    return SimConfig(
+        fabric=config.fabric, substeps=config.sim_substeps, iterations=config.sim_iterations
+    )
 
 
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:

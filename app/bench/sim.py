@@ -1,11 +1,18 @@
-"""``dng bench sim``: cloth simulation speed against accuracy, for several solver settings.
+"""``dng bench sim``: how far each simulation quality is from convergence, and what it costs.
 
-For each garment (a ~2k proxy, the built-in ``long-skirt``, and the same skirt refined to
-about 10k and 30k vertices) and each (substeps, iterations) setting, the bench simulates the
-same clip and reports wall ms per frame and the error against a high-substep reference run of
-that garment: mean and max vertex distance over all frames. Writes ``sim.json`` and ``sim.png``
-(error against ms/frame) under ``--out``. Timings are wall-clock on the machine it runs on
-(CPU unless ``--device cuda``); they include nothing but the solver steps and checks.
+For each clip (``dance``, ``walk``, ``jump``, ``twirl`` and CMU 01_01 retargeted, when the file
+is on this machine) and each quality (substeps x iterations), the bench simulates the garment
+(default: the ``long-skirt`` template at 42 mm, about 1k vertices, a proxy's size) and a
+reference run twice as fine in time and in iterations (2x the substeps, the solver iterations
+and the linear solver's iterations), and reports
+the vertex distance between the two (mean and 95th percentile over vertices and frames, mm),
+wall ms per clip frame, the largest and 99th-percentile edge strain, and whether the quality is
+within the convergence targets (:data:`TARGET_MEAN_MM`, :data:`TARGET_P95_MM`). Writes
+``sim.json`` and ``sim.png`` (distance against ms/frame, one line per clip) under ``--out``.
+
+Clips are short by default (30 frames after a 0.7 s lead-in) so the bench takes minutes on
+2 cores; ``--frames`` and ``--clips`` measure more. Timings are wall-clock on this machine and
+count only the clip's solver steps and checks.
 """
 
 from __future__ import annotations
@@ -14,36 +21,46 @@ import argparse
 import json
 import sys
 
-HELP = "cloth simulation: ms/frame and error against a high-substep reference"
+HELP = "cloth simulation: each quality's distance to a run twice as fine, ms/frame, strain"
 
-#: (substeps per 1/30 s, iterations) settings measured by default, cheapest first.
-DEFAULT_SETTINGS = ((1, 4), (2, 4), (2, 8), (4, 8))
-#: The reference setting.
-DEFAULT_REFERENCE = (8, 16)
-#: Garment sizes: the proxy and the refined targets (approximate vertex counts).
-DEFAULT_SIZES = (0, 10000, 30000)
+#: Clips measured by default; ``cmu-01_01`` is CMU 01_01 retargeted (skipped when absent).
+DEFAULT_CLIPS = ("dance", "walk", "jump", "twirl", "cmu-01_01")
+#: Convergence targets of a preset's quality against its reference run (mm).
+TARGET_MEAN_MM = 10.0
+TARGET_P95_MM = 25.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from app.bench import add_output_arguments
+    from core.sim.config import QUALITY
 
     add_output_arguments(parser)
-    parser.add_argument("--garment", default="long-skirt", help="built-in garment (long-skirt)")
     parser.add_argument(
-        "--sizes", default=",".join(map(str, DEFAULT_SIZES)), metavar="N,N,...",
-        help="vertex counts: 0 is the garment as built, others refine it (default: %(default)s)",
+        "--garment", default="long-skirt", help="built-in garment or mesh file (long-skirt)"
+    )
+    parser.add_argument(
+        "--resolution", type=float, default=42.0,
+        help="built-in garment's edge length, mm (42: about 1k vertices for long-skirt)",
     )  # fmt: skip
     parser.add_argument(
-        "--settings", default=";".join(f"{s},{i}" for s, i in DEFAULT_SETTINGS),
-        metavar="S,I;S,I", help="substeps,iterations pairs (default: %(default)s)",
+        "--clips", default=",".join(DEFAULT_CLIPS), metavar="A,B,...",
+        help="procedural kinds and/or cmu-01_01 (default: %(default)s)",
     )  # fmt: skip
     parser.add_argument(
-        "--reference", default=",".join(map(str, DEFAULT_REFERENCE)), metavar="S,I",
-        help="reference substeps,iterations (default: %(default)s)",
+        "--qualities", default=",".join(QUALITY), metavar="Q,Q,...",
+        help="quality names (core.sim.config.QUALITY; default: %(default)s)",
     )  # fmt: skip
-    parser.add_argument("--motion", default="dance", help="procedural motion kind (dance)")
-    parser.add_argument("--frames", type=int, default=20, help="clip frames (20)")
-    parser.add_argument("--solver", default="style3d", help="style3d or vbd")
+    parser.add_argument(
+        "--settings", default="", metavar="S,I;S,I",
+        help="extra substeps,iterations pairs to measure beside the named qualities",
+    )  # fmt: skip
+    parser.add_argument(
+        "--linear", type=int, default=None,
+        help="linear solver iterations of every setting (default: SimConfig's)",
+    )  # fmt: skip
+    parser.add_argument("--frames", type=int, default=30, help="clip frames (30)")
+    parser.add_argument("--seed", type=int, default=0, help="procedural motion seed (0)")
+    parser.add_argument("--fabric", default="cotton", help="fabric preset (cotton)")
     parser.add_argument("--transition", type=float, default=0.5, help="lead-in blend, s (0.5)")
     parser.add_argument("--settle", type=float, default=0.2, help="lead-in hold, s (0.2)")
     parser.add_argument("--device", default="cpu", help="warp device (cpu or cuda)")
@@ -56,111 +73,169 @@ def _pairs(text: str) -> list[tuple[int, int]]:
         out = [tuple(int(x) for x in item.split(",")) for item in text.split(";") if item]
     except ValueError:
         raise InputError(f"bad settings {text!r}: use S,I;S,I") from None
-    if not out or any(len(p) != 2 for p in out):
-        raise InputError(f"bad settings {text!r}: use S,I;S,I")
+    if any(len(p) != 2 or min(p) < 1 for p in out):
+        raise InputError(f"bad settings {text!r}: use S,I;S,I with positive integers")
     return out
 
 
-def refine(mesh, target: int):
-    """``mesh`` midpoint-subdivided until it has about ``target`` vertices (closest found)."""
+def settings_to_measure(qualities: str, extra: str) -> list[tuple[str, tuple[int, int]]]:
+    """(label, (substeps, iterations)) for the named qualities, then the extra pairs."""
+    from core.errors import InputError
+    from core.sim.config import QUALITY
+
+    out = []
+    for name in [q for q in qualities.split(",") if q]:
+        if name not in QUALITY:
+            raise InputError(f"unknown quality {name!r}; choose from {', '.join(QUALITY)}")
+        out.append((name, QUALITY[name]))
+    out += [(f"{s}x{i}", (s, i)) for s, i in _pairs(extra)]
+    if not out:
+        raise InputError("nothing to measure: give --qualities or --settings")
+    return out
+
+
+def bench_motion(clip: str, frames: int, seed: int, shape):
+    """The clip's motion on the mannequin of ``shape``, or None for a CMU file not here."""
+    from core.errors import InputError
+    from core.motion.procedural import PROCEDURAL_KINDS, make_motion
+    from training.pipeline import CMU_CLIP, MotionSpec, PipelineConfig, _make_motion
+
+    if clip in PROCEDURAL_KINDS:
+        return make_motion(clip, frames, 30.0, seed, shape)
+    if clip == "cmu-01_01":
+        if not CMU_CLIP.is_file():
+            return None
+        spec = MotionSpec(clip, "file", frames, path=str(CMU_CLIP), start_s=2.0)
+        return _make_motion(spec, PipelineConfig(body=shape))
+    raise InputError(f"unknown clip {clip!r}; use {', '.join(PROCEDURAL_KINDS)} or cmu-01_01")
+
+
+def distance_stats(positions, reference) -> tuple[float, float]:
+    """Mean and 95th percentile (mm) of the vertex distances between two (T, V, 3) runs."""
     import numpy as np
-    import trimesh
 
-    from core.mesh import Mesh
+    d = np.linalg.norm(np.asarray(positions, np.float64) - reference, axis=-1)
+    return float(d.mean() * 1000), float(np.percentile(d, 95) * 1000)
 
-    if target <= mesh.num_vertices:
-        return mesh
-    e = mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    edge = float(np.median(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1)))
-    best = None
-    for f in np.linspace(0.3, 1.0, 15):
-        max_edge = edge * f * np.sqrt(mesh.num_vertices / target) * 1.5
-        v, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge)
-        if best is None or abs(len(v) - target) < abs(len(best[0]) - target):
-            best = (v, faces)
-    # subdivide_to_size leaves duplicate vertices on shared edges: merge them.
-    tm = trimesh.Trimesh(best[0], best[1], process=True)
-    return Mesh(np.asarray(tm.vertices, np.float32), np.asarray(tm.faces, np.int64))
+
+def _garment(spec: str, resolution: float, shape):
+    from pathlib import Path
+
+    from core.mesh import load_mesh
+    from templates.garments import make_garment
+
+    if Path(spec).exists():
+        return load_mesh(spec)[0]
+    return make_garment(spec, resolution, shape=shape)
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    import numpy as np
-
     from core.body.shape import BodyShape
+    from core.errors import InputError
     from core.fileio import write_json
-    from core.motion.procedural import make_motion
     from core.sim.config import SimConfig
     from core.sim.simulate import simulate
-    from templates.garments import make_garment
 
-    settings = _pairs(args.settings)
-    reference = _pairs(args.reference)[0]
-    sizes = [int(s) for s in args.sizes.split(",") if s]
+    if args.frames < 2:
+        raise InputError(f"--frames must be at least 2, got {args.frames}")
+    measured = settings_to_measure(args.qualities, args.settings)
+    clips = [c for c in args.clips.split(",") if c]
+    lin = SimConfig().linear_iterations if args.linear is None else args.linear
+    if lin < 1:
+        raise InputError(f"--linear must be at least 1, got {lin}")
     shape = BodyShape()
-    motion = make_motion(args.motion, args.frames, 30.0, 0, shape)
-    base = make_garment(args.garment, shape=shape)
-    rows = []
-    out = Path(args.out)
-    for size in sizes:
-        garment = refine(base, size)
-        runs = {}
-        for s, i in [reference, *settings]:
-            if (s, i) in runs:
-                continue
-            cfg = SimConfig(
-                substeps=s, iterations=i, solver=args.solver, device=args.device,
-                transition_s=args.transition, settle_s=args.settle,
-            )  # fmt: skip
-            with _quiet():
-                cache, report = simulate(garment, motion, shape, cfg)
-            runs[(s, i)] = (cache.positions, report)
-            print(
-                f"{garment.num_vertices:6d} verts  substeps {s:2d} iters {i:2d}: "
-                f"{report.ms_per_frame:9.1f} ms/frame",
-                file=sys.stderr,
-            )
-        ref_pos = runs[reference][0]
-        for (s, i), (pos, report) in runs.items():
-            dist = np.linalg.norm(pos.astype(np.float64) - ref_pos, axis=-1)
+    garment = _garment(args.garment, args.resolution, shape)
+    rows, skipped = [], []
+    for clip in clips:
+        motion = bench_motion(clip, args.frames, args.seed, shape)
+        if motion is None:
+            skipped.append(clip)
+            print(f"{clip}: clip file not on this machine, skipped", file=sys.stderr)
+            continue
+        runs: dict = {}
+
+        def sim(s: int, i: int, lin: int, clip=clip, motion=motion, runs=runs):
+            if (s, i, lin) not in runs:
+                cfg = SimConfig(
+                    fabric=args.fabric, substeps=s, iterations=i, linear_iterations=lin,
+                    device=args.device, transition_s=args.transition, settle_s=args.settle,
+                )  # fmt: skip
+                with _quiet():
+                    cache, report = simulate(garment, motion, shape, cfg)
+                runs[(s, i, lin)] = (cache.positions, report)
+                print(
+                    f"{clip:10s} {s:2d}x{i:<2d} linear {lin:3d} {report.ms_per_frame:8.1f} ms/frame",
+                    file=sys.stderr, flush=True,
+                )  # fmt: skip
+            return runs[(s, i, lin)]
+
+        for label, (s, i) in measured:
+            pos, report = sim(s, i, lin)
+            ref_pos, ref_report = sim(2 * s, 2 * i, 2 * lin)
+            mean_mm, p95_mm = distance_stats(pos, ref_pos)
             rows.append(
                 {
-                    "garment": args.garment,
-                    "vertices": garment.num_vertices,
+                    "clip": clip,
+                    "quality": label,
                     "substeps": s,
                     "iterations": i,
-                    "reference": (s, i) == reference,
+                    "linear_iterations": lin,
+                    "reference": [2 * s, 2 * i, 2 * lin],
+                    "mean_mm": round(mean_mm, 2),
+                    "p95_mm": round(p95_mm, 2),
+                    "within_target": mean_mm <= TARGET_MEAN_MM and p95_mm <= TARGET_P95_MM,
                     "ms_per_frame": report.ms_per_frame,
-                    "error_mean_mm": float(dist.mean() * 1000),
-                    "error_max_mm": float(dist.max() * 1000),
-                    "strain_max": report.strain_max,
-                    "penetration_mean_mm": report.penetration_mean_mm,
+                    "reference_ms_per_frame": ref_report.ms_per_frame,
+                    "strain_max": round(report.strain_max, 4),
+                    "strain_p99": round(report.strain_p99, 4),
+                    "strain_limit": report.strain_limit,
+                    "penetration_p99_mm": round(report.penetration_p99_mm, 2),
                     "retried_frames": list(report.retried_frames),
                     "device": report.device,
                 }
             )
     result = {
         "bench": "sim",
-        "motion": args.motion,
+        "garment": args.garment,
+        "vertices": garment.num_vertices,
         "frames": args.frames,
-        "solver": args.solver,
-        "reference": list(reference),
+        "seed": args.seed,
+        "fabric": args.fabric,
         "lead_in_s": [args.transition, args.settle],
+        "targets_mm": {"mean": TARGET_MEAN_MM, "p95": TARGET_P95_MM},
+        "skipped_clips": skipped,
         "rows": rows,
     }
+    out = Path(args.out)
     write_json(out / "sim.json", result)
-    _plot(out / "sim.png", rows)
+    _plot(out / "sim.png", rows, garment.num_vertices)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        for r in rows:
-            print(
-                f"{r['vertices']:6d} verts  {r['substeps']:2d}x{r['iterations']:<2d} "
-                f"{r['ms_per_frame']:9.1f} ms/frame  error mean {r['error_mean_mm']:7.2f} mm  "
-                f"max {r['error_max_mm']:7.2f} mm" + ("  (reference)" if r["reference"] else "")
-            )
+        print(format_table(rows, garment.num_vertices, args.frames))
     return 0
+
+
+def format_table(rows: list[dict], vertices: int, frames: int) -> str:
+    """The rows as a Markdown table (what the config's docstring and the README quote)."""
+    head = (
+        f"{vertices} vertices, {frames} frames; distance to a run with 2x substeps, 2x "
+        f"iterations and 2x linear iterations (target: mean <= {TARGET_MEAN_MM:g} mm, p95 <= {TARGET_P95_MM:g} mm)\n\n"
+        "| clip | quality | S x I x L | mean mm | p95 mm | ms/frame | strain max | strain p99 |\n"
+        "|---|---|---|---:|---:|---:|---:|---:|"
+    )
+    lines = [head]
+    for r in rows:
+        mark = "" if r["within_target"] else " (over)"
+        lines.append(
+            f"| {r['clip']} | {r['quality']} "
+            f"| {r['substeps']}x{r['iterations']}x{r['linear_iterations']} "
+            f"| {r['mean_mm']:.1f}{mark} | {r['p95_mm']:.1f} | {r['ms_per_frame']:.0f} "
+            f"| {r['strain_max']:.3f} | {r['strain_p99']:.3f} |"
+        )
+    return "\n".join(lines)
 
 
 def _quiet():
@@ -169,7 +244,7 @@ def _quiet():
     return contextlib.redirect_stdout(sys.stderr)
 
 
-def _plot(path, rows) -> None:
+def _plot(path, rows, vertices: int) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -177,24 +252,26 @@ def _plot(path, rows) -> None:
 
     from core.fileio import atomic_path
 
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-    for v in sorted({r["vertices"] for r in rows}):
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=100)
+    for clip in dict.fromkeys(r["clip"] for r in rows):
         pts = sorted(
-            (r["ms_per_frame"], r["error_mean_mm"], f"{r['substeps']}x{r['iterations']}")
+            (r["ms_per_frame"], r["mean_mm"], r["p95_mm"], r["quality"])
             for r in rows
-            if r["vertices"] == v and not r["reference"]
+            if r["clip"] == clip
         )
-        if not pts:
-            continue
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{v} vertices")
-        for x, y, label in pts:
+        (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{clip} mean")
+        ax.plot([p[0] for p in pts], [p[2] for p in pts], "^:", color=line.get_color(), alpha=0.6)
+        for x, y, _, label in pts:
             ax.annotate(label, (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.axhline(TARGET_MEAN_MM, color="k", lw=0.8, ls="--", label=f"mean target {TARGET_MEAN_MM:g}")
+    ax.axhline(TARGET_P95_MM, color="grey", lw=0.8, ls=":", label=f"p95 target {TARGET_P95_MM:g}")
     ax.set_xscale("log")
+    ax.set_yscale("log")
     ax.set_xlabel("ms per frame")
-    ax.set_ylabel("mean vertex error vs reference (mm)")
-    ax.set_title("cloth simulation: speed vs accuracy")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.set_ylabel("distance to 2x finer run (mm; o mean, ^ p95)")
+    ax.set_title(f"cloth simulation convergence, {vertices} vertices")
+    ax.grid(True, alpha=0.3, which="both")
+    ax.legend(fontsize=7)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp)

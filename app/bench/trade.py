@@ -502,7 +502,7 @@ def simulate_target(
     clip = load_motion_for(project_obj, motion)
     clip = load_motion_for(project_obj, motion, frames=min(frames, clip.num_frames))
     cfg = SimConfig(
-        fabric=config.fabric, substeps=config.sim_substeps,
+        fabric=config.fabric, substeps=config.sim_substeps, iterations=config.sim_iterations,
         transition_s=float(lead_in[0]), settle_s=float(lead_in[1]),
         device="cuda" if str(device).startswith("cuda") else "cpu",
     )  # fmt: skip

@@ -123,16 +123,16 @@ def pcg_serial(
         else:
             x[i] = wp.vec3(0.0)
         r[i] = b[i] - ax
-    rz_old = float(0.0)
+    rz_old = wp.float32(0.0)
     for it in range(iterations):
-        rz = float(0.0)
+        rz = wp.float32(0.0)
         for i in range(n):
             z[i] = inv_m[i] * r[i]
             rz += wp.dot(r[i], z[i])
-        beta = float(0.0)
+        beta = wp.float32(0.0)
         if it > 0 and wp.abs(rz_old) > 1.0e-30 and not wp.isnan(rz) and not wp.isnan(rz_old):
             beta = rz / rz_old
-        pap = float(0.0)
+        pap = wp.float32(0.0)
         for i in range(n):
             p[i] = z[i] + beta * p[i]
         for i in range(n):
@@ -141,7 +141,7 @@ def pcg_serial(
                 y += nz_value[k, i] * p[nz_column[k, i]]
             ap[i] = y
             pap += wp.dot(p[i], y)
-        alpha = float(0.0)
+        alpha = wp.float32(0.0)
         if wp.abs(pap) > 1.0e-30 and not wp.isnan(pap) and not wp.isnan(rz):
             alpha = rz / pap
         for i in range(n):

@@ -39,9 +39,7 @@ def _centres(positions: np.ndarray, waist: np.ndarray) -> np.ndarray:
     return np.asarray(positions, np.float64)[:, waist].mean(axis=1)
 
 
-def hem_radius(
-    positions: np.ndarray, hem: np.ndarray, waist: np.ndarray, axis=UP
-) -> np.ndarray:
+def hem_radius(positions: np.ndarray, hem: np.ndarray, waist: np.ndarray, axis=UP) -> np.ndarray:
     """Mean distance of the hem from the waist's axis, per frame.
 
     Parameters

@@ -475,9 +475,7 @@ class _Scene:
         ang = (Rotation.from_quat(qb) * Rotation.from_quat(qa).inv()).as_rotvec() / dt
         return np.concatenate([lin, ang.reshape(lin.shape)], axis=-1).astype(np.float32)
 
-    def step(
-        self, ma: np.ndarray, mb: np.ndarray, dt: float, poses: tuple | None = None
-    ) -> None:
+    def step(self, ma: np.ndarray, mb: np.ndarray, dt: float, poses: tuple | None = None) -> None:
         """One solver step with the body moving from transforms ``ma`` to ``mb`` (J, 4, 4).
 
         ``poses``: the capsules' (pa, pb, velocity) for them when already computed (a whole
