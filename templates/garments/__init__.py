@@ -22,7 +22,7 @@ a pattern-making tool exports once its seams are welded; see :mod:`.tops`):
 * ``slit-skirt``: a single layer with a front slit and no waistband (2 loops).
 
 Coarse templates (stand-in proxies, one clean open surface each, a few thousand vertices):
-``long-skirt``, ``short-skirt``, ``simple-dress``.
+``long-skirt`` (full at the hem, so a twirl flares it), ``short-skirt``, ``simple-dress``.
 
 Every part is an open 2-manifold with its normals pointing away from the body (the
 folded-under layers of pleats face it, as folded cloth does). Resolution is the target edge
@@ -255,8 +255,14 @@ GARMENTS: dict[str, GarmentSpec] = {
         GarmentSpec(
             "long-skirt",
             "coarse",
-            "plain A-line skirt to the ankles",
-            SkirtConfig(top=0.63, hems=(0.10,), flares=(0.12,)),
+            "A-line skirt to the ankles, full at the hem (12 soft folds it flares into)",
+            # Fullness to flare: a plain A-line frustum is developable, its hem circle as long as
+            # the cloth there, so a twirl cannot widen it without stretching the fabric (its hem
+            # radius stayed 1.00x standing on a converged 1 rev/s spin). With these folds the
+            # hem's cloth is 1.46x its hanging circle, and on the 90-frame twirl (dng simulate
+            # --garment long-skirt --motion twirl --frames 90) the hem's mean radius over the
+            # second half is 1.33x frame 0's.
+            SkirtConfig(top=0.63, hems=(0.10,), flares=(0.15,), folds=(12,), fold_depths=(0.10,)),
             build_layered_skirt,
             30.0,
             _COARSE_RANGE,
