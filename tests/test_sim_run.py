@@ -127,3 +127,35 @@ def test_layered_garment_turns_self_collision_on():
     assert cache.params["sim"]["self_collision"] is True
     assert report.finite and report.strain_max < report.strain_limit
     assert report.pinned >= 48  # both waistbands
+
+
+def test_serial_pcg_solves_as_newtons(skirt, monkeypatch):
+    # Each linear solve runs both ways on the same inputs: our one-launch PCG (CPU) and newton's
+    # PcgSolver (five launches per iteration); the solutions agree to float rounding.
+    import warp as wp
+
+    from core.sim import simulate as sim_module
+
+    serial = sim_module._Scene._serial_pcg
+    worst = []
+
+    def both(self):
+        newtons = self.solver.linear_solver.solve
+        serial(self)
+        ours = self.solver.linear_solver.solve
+
+        def solve(a_non_diag, a_diag, x0, b, inv_m, x1, iterations, additional=None):
+            start = None if x0 is None else x0.numpy().copy()
+            newtons(a_non_diag, a_diag, x0, b, inv_m, x1, iterations, additional)
+            ref = x1.numpy().copy()
+            if start is not None:
+                x1.assign(wp.array(start, dtype=wp.vec3, device=x1.device))
+            ours(a_non_diag, a_diag, x0, b, inv_m, x1, iterations, additional)
+            scale = max(float(np.abs(ref).max()), 1e-9)
+            worst.append(float(np.abs(x1.numpy() - ref).max()) / scale)
+
+        self.solver.linear_solver.solve = solve
+
+    monkeypatch.setattr(sim_module._Scene, "_serial_pcg", both)
+    simulate(skirt, spin_motion(3), BodyShape(), FAST)
+    assert len(worst) > 10 and max(worst) < 1e-4, max(worst)
