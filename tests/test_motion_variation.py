@@ -64,3 +64,17 @@ def test_motion_specs_with_variations_keep_their_frame_count(bvh_dir):
     assert _make_motion(spec, config).num_frames == 25
     spec = MotionSpec("c", "file", 20, path=str(bvh_dir / "01_03.bvh"), start_s=3.0, speed=0.8)
     assert _make_motion(spec, config).num_frames == 20
+
+
+def test_turn_spins_the_body_in_place(dance):
+    idle = make_motion("idle", 31, 30.0, 1)
+    spun = vary_motion(idle, turn_deg_s=180.0)  # half a turn a second: 90 degrees at frame 15
+    p, q = idle.root_positions, spun.root_positions
+    np.testing.assert_allclose(q[0], p[0], atol=1e-6)
+    np.testing.assert_allclose(q[:, 1], p[:, 1], atol=1e-6)
+    # The body's facing (the root's local +Z) turns by the angle; the path stays about its start.
+    facing = lambda m: m.rotations[:, 0] @ np.array([0.0, 0.0, 1.0], np.float32)  # noqa: E731
+    a, b = facing(idle)[30], facing(spun)[30]  # a full half turn at frame 30
+    np.testing.assert_allclose(b[[0, 2]], -a[[0, 2]], atol=1e-5)
+    radius = np.linalg.norm((q - q[0])[:, [0, 2]], axis=1)
+    np.testing.assert_allclose(radius, np.linalg.norm((p - p[0])[:, [0, 2]], axis=1), atol=1e-5)

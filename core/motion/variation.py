@@ -24,7 +24,11 @@ def source_frames(frames: int, speed: float) -> int:
 
 
 def vary_motion(
-    motion: Motion, speed: float = 1.0, amplitude: float = 1.0, heading_deg: float = 0.0
+    motion: Motion,
+    speed: float = 1.0,
+    amplitude: float = 1.0,
+    heading_deg: float = 0.0,
+    turn_deg_s: float = 0.0,
 ) -> Motion:
     """The clip played ``speed`` times faster, its joint rotations scaled, turned about +Y.
 
@@ -41,6 +45,10 @@ def vary_motion(
     heading_deg : float
         The whole clip (root rotation and root path) turned about the vertical axis through the
         origin by this many degrees.
+    turn_deg_s : float
+        The body also turns at this many degrees per second about the vertical through its
+        first frame's root (a spin added to the clip: an idle becomes a pirouette), after the
+        speed change.
 
     Returns
     -------
@@ -50,6 +58,7 @@ def vary_motion(
         ("speed", speed, speed > 0),
         ("amplitude", amplitude, amplitude >= 0),
         ("heading_deg", heading_deg, True),
+        ("turn_deg_s", turn_deg_s, True),
     ):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and ok):
             raise InputError(f"motion variation {name}={v!r} is out of range", motion.name or None)
@@ -66,4 +75,11 @@ def vary_motion(
         turn = Rotation.from_euler("y", heading_deg, degrees=True).as_matrix().astype(np.float32)
         rotations[:, 0] = turn @ rotations[:, 0]
         roots = roots @ turn.T
-    return replace(out, rotations=rotations, root_positions=roots)
+    if turn_deg_s != 0.0:
+        angles = turn_deg_s * np.arange(len(roots)) / out.fps
+        turn = Rotation.from_euler("y", angles[:, None], degrees=True).as_matrix()
+        turn = turn.astype(np.float32)
+        centre = roots[0] * np.array([1.0, 0.0, 1.0], np.float32)
+        rotations[:, 0] = turn @ rotations[:, 0]
+        roots = np.einsum("tij,tj->ti", turn, roots - centre) + centre
+    return replace(out, rotations=rotations, root_positions=roots.astype(np.float32))

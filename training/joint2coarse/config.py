@@ -27,19 +27,20 @@ class Joint2CoarseConfig(PlainConfig):
     fields below) or ``ours`` (:mod:`training.joint2coarse.body_model`: the proxy skinned to the
     body plus a ridge residual on the joints' history; it uses ``window``, ``stride``,
     ``clamp_z``, ``ridge`` and ``skin_fade``, and trains in seconds)."""
-    ridge: float = 1.0
+    ridge: float = 30.0
     """``ours``: ridge penalty of the residual, per training frame, on z-scored features.
     Chosen on the quick preset's validation motions (mean over them of the mean / p95 vertex
     error, mm; ``dng train joint2coarse P --set ridge=R``, report ``validation_motions``):
-    0.1: 54.3 / 141, 1: 49.1 / 109, 10: 54.1 / 110. On an earlier library (14 clips, 4
-    validation motions) a residual in the heading frame gave 60.9 mm at 1 against 59.8 in the
-    hips' frame (kept), and 0.001: 106.5, 0.01: 85.7, 0.1: 72.6, 10: 60.2, 100: 64.8."""
+    0.1: 82.8 / 211, 1: 71.2 / 170, 10: 55.2 / 122, 30: 53.7 / 112, 100: 55.4 / 114. Without
+    spins in the library (and the validation dance not spun) 1 was best (49.1 / 109 against
+    54.1 / 110 at 10); on an earlier library a residual in the heading frame gave 60.9 mm at 1
+    against 59.8 in the hips' frame (kept)."""
     skin_fade: float = 1.0
     """``ours``: how the skinning fades down the garment: a vertex at relative height h in the
     garment (1 at the top, 0 at the hem) keeps ``h ** skin_fade`` of the body's skinning
     weights and follows the hips rigidly for the rest (0: skinned everywhere). On the quick
-    preset's validation motions (as ``ridge``, at ridge 1): 0: 53.0 / 124, 1: 49.1 / 109,
-    3: 49.1 / 110 mm."""
+    preset's validation motions (as ``ridge``): at ridge 1, 0: 74.0 / 176, 1: 71.2 / 170,
+    3: 71.5 / 172; at ridge 30, 1: 53.7 / 112, 3: 53.8 / 113."""
     window: int = 34
     """Frames of motion history the descriptor covers (current frame included)."""
     stride: int = 2
