@@ -59,6 +59,57 @@ KINEMATIC_CONTACT_WEIGHT = 1.0e-6
 STYLE3D_VELOCITY_FACTOR = 0.998
 
 
+class _RecordedLaunches:
+    """Warp, as newton's Style3D solver sees it, with every kernel launch recorded once.
+
+    The solver launches the same kernels on the same arrays every iteration; on a CPU packing
+    a launch's arguments costs more than running it on a few thousand particles. Here each
+    distinct launch (kernel, size, arguments: arrays by address and shape, numbers by value)
+    is recorded on first use and replayed after (warp's ``record_cmd``): the same kernels on
+    the same data, so the results are bit for bit the same. Everything else is warp's own.
+    """
+
+    def __init__(self, wp):
+        self._wp = wp
+        self._cache: dict = {}
+
+    def __getattr__(self, name):
+        return getattr(self._wp, name)
+
+    @staticmethod
+    def _key(arg):
+        if isinstance(arg, (int, float, bool)) or arg is None:
+            return (type(arg), arg)
+        ptr = getattr(arg, "ptr", None)
+        if ptr is not None:
+            return ("array", ptr, tuple(arg.shape), str(arg.dtype))
+        return ("object", id(arg))
+
+    def launch(self, kernel, dim, inputs=(), outputs=(), device=None, **kwargs):
+        if kwargs:
+            return self._wp.launch(kernel, dim, inputs, outputs, device=device, **kwargs)
+        dims = dim if isinstance(dim, int) else tuple(dim)
+        key = (kernel, dims, *map(self._key, inputs), "|", *map(self._key, outputs))
+        cmd = self._cache.get(key)
+        if cmd is None:
+            if len(self._cache) > 4096:  # a bound; a run uses a few dozen
+                self._cache.clear()
+            cmd = self._wp.launch(kernel, dim, inputs, outputs, device=device, record_cmd=True)
+            self._cache[key] = cmd
+        cmd.launch()
+
+
+def _record_style3d_launches(wp) -> None:
+    """Route the Style3D solver's and its collision handler's launches through
+    :class:`_RecordedLaunches` (CPU only: CUDA launches are cheap to issue)."""
+    from newton._src.solvers.style3d import solver_style3d
+    from newton._src.solvers.style3d.collision import collision
+
+    for module in (solver_style3d, collision):
+        if not isinstance(module.wp, _RecordedLaunches):
+            module.wp = _RecordedLaunches(wp)
+
+
 class SimulationError(InputError):
     """The simulation blew up and could not be recovered; nothing was written.
 
@@ -300,6 +351,7 @@ class _Scene:
             self.solver.config.linear_iterations = config.linear_iterations
             if not self.device.is_cuda:
                 self._serial_pcg()
+                _record_style3d_launches(wp)
             col = self.solver.collision
             # Style3D keeps twice this radius between cloth pieces (its "thickness").
             col.radius = 0.5 * config.self_contact_thickness
@@ -368,11 +420,13 @@ class _Scene:
         no_contacts = wp.zeros(n, dtype=wp.mat33, device=dev)
         col = solver.collision
 
+        launcher = _RecordedLaunches(wp)
+
         def solve(a_non_diag, a_diag, x0, b, inv_m, x1, iterations, additional=None):
             if x0 is not None and x0.ptr != x1.ptr:
                 x1.assign(x0)
             h = no_contacts if additional is None else col.contact_hessian_diagonal()
-            wp.launch(
+            launcher.launch(
                 pcg_serial,
                 dim=1,
                 inputs=[n, int(iterations), int(x0 is not None), num_nz, column, value, a_diag,
