@@ -66,7 +66,8 @@ class _RecordedLaunches:
     a launch's arguments costs more than running it on a few thousand particles. Here each
     distinct launch (kernel, size, arguments: arrays by address and shape, numbers by value)
     is recorded on first use and replayed after (warp's ``record_cmd``): the same kernels on
-    the same data, so the results are bit for bit the same. Everything else is warp's own.
+    the same data, so the results are bit for bit the same. A launch with any other argument
+    (a struct, None) is not recorded. Everything else is warp's own.
     """
 
     def __init__(self, wp):
@@ -78,18 +79,19 @@ class _RecordedLaunches:
 
     @staticmethod
     def _key(arg):
-        if isinstance(arg, (int, float, bool)) or arg is None:
+        if isinstance(arg, (int, float, bool)):
             return (type(arg), arg)
         ptr = getattr(arg, "ptr", None)
         if ptr is not None:
-            return ("array", ptr, tuple(arg.shape), str(arg.dtype))
-        return ("object", id(arg))
+            return ("array", ptr, tuple(arg.shape), tuple(arg.strides), str(arg.dtype))
+        return None  # a struct or other object: its contents may change, never replayed
 
     def launch(self, kernel, dim, inputs=(), outputs=(), device=None, **kwargs):
-        if kwargs:
+        args = [self._key(a) for a in (*inputs, *outputs)]
+        if kwargs or None in args:
             return self._wp.launch(kernel, dim, inputs, outputs, device=device, **kwargs)
         dims = dim if isinstance(dim, int) else tuple(dim)
-        key = (kernel, dims, *map(self._key, inputs), "|", *map(self._key, outputs))
+        key = (kernel, dims, len(inputs), *args)
         cmd = self._cache.get(key)
         if cmd is None:
             if len(self._cache) > 4096:  # a bound; a run uses a few dozen
