@@ -118,13 +118,15 @@ def test_walk_keeps_the_skirt_near_the_legs(walk):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["twirl", "jump", "walk"])
-def test_long_skirt_on_procedural_clips(kind):
+@pytest.mark.parametrize(("kind", "frames"), [("twirl", 90), ("jump", 45), ("walk", 45)])
+def test_long_skirt_on_procedural_clips(kind, frames):
+    # The twirl is the acceptance run: dng simulate --garment long-skirt --motion twirl
+    # --frames 90 at the default quality (its hem: 1.33x standing over the second half).
     from templates.garments import make_garment
 
     garment = make_garment("long-skirt", shape=BodyShape())
     positions, report, hem, waist = _measures(
-        garment, make_motion(kind, 90, 30.0, 0, BodyShape()), SimConfig()
+        garment, make_motion(kind, frames, 30.0, 0, BodyShape()), SimConfig()
     )
     _assert_physical(report)
     ratio = hem_radius_ratio(positions, hem, waist)
