@@ -1,0 +1,50 @@
+"""``dng bench sim``: settings parsing, the distance figures, and a tiny run end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.bench.sim import distance_stats, format_table, settings_to_measure
+from core.errors import InputError
+from core.sim.config import QUALITY
+
+
+def test_settings_and_distances():
+    assert settings_to_measure("draft,final", "3,5") == [
+        ("draft", QUALITY["draft"]),
+        ("final", QUALITY["final"]),
+        ("3x5", (3, 5)),
+    ]
+    with pytest.raises(InputError, match="unknown quality"):
+        settings_to_measure("fast", "")
+    with pytest.raises(InputError, match="S,I"):
+        settings_to_measure("", "2,x")
+    ref = np.zeros((2, 10, 3))
+    pos = ref.copy()
+    pos[:, :, 0] = np.linspace(0.001, 0.010, 10)  # 1..10 mm
+    mean, p95 = distance_stats(pos, ref)
+    assert mean == pytest.approx(5.5)
+    assert p95 == pytest.approx(np.percentile(np.tile(np.arange(1.0, 11.0), 2), 95))
+
+
+def test_tiny_bench_writes_table_json_and_plot(tmp_path, capsys):
+    from app.cli import main
+    from core.mesh import save_mesh
+    from tests.sim_helpers import frustum_skirt
+
+    save_mesh(tmp_path / "skirt.obj", frustum_skirt(16, 6))
+    args = ["bench", "sim", "--garment", str(tmp_path / "skirt.obj"), "--clips", "walk",
+            "--qualities", "", "--settings", "1,2", "--frames", "3", "--transition", "0.1",
+            "--settle", "0.0", "--out", str(tmp_path / "b")]  # fmt: skip
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    assert "| walk | 1x2 | 1x2x10 |" in table
+    result = json.loads((tmp_path / "b" / "sim.json").read_text())
+    (row,) = result["rows"]
+    assert row["reference"] == [2, 4, 20] and row["mean_mm"] <= row["p95_mm"]
+    assert row["within_target"] == (row["mean_mm"] <= 10 and row["p95_mm"] <= 25)
+    assert (tmp_path / "b" / "sim.png").stat().st_size > 0
+    assert format_table(result["rows"], 96, 3).count("\n") == 4
