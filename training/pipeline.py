@@ -278,9 +278,9 @@ PRESETS: dict[str, PipelineConfig] = {
             *LIBRARY_TRAIN,
         ),
         joint2coarse_validation=LIBRARY_VALIDATION,
-        # Ours, the paper's autoencoder beside it on the same splits (report: compare). On an
-        # earlier library (14 clips, 4 validation motions) ours averaged 59.8 / 137 mm (mean /
-        # p95) on the validation motions against the paper's 73.4 / 175.
+        # Ours, the paper's autoencoder beside it on the same splits (report: compare). On the
+        # validation motions ours averaged 52.7 / 110 mm (mean / p95), the paper's 64.4 / 176
+        # (dng train joint2coarse P: report validation_motions and compare).
         joint2coarse_overrides={"model": "ours"},
         joint2coarse_compare=("paper", "ours"),
     ),

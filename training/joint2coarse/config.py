@@ -31,10 +31,10 @@ class Joint2CoarseConfig(PlainConfig):
     """``ours``: ridge penalty of the residual, per training frame, on z-scored features.
     Chosen on the quick preset's validation motions (mean over them of the mean / p95 vertex
     error, mm; ``dng train joint2coarse P --set ridge=R``, report ``validation_motions``):
-    0.1: 82.8 / 211, 1: 71.2 / 170, 10: 55.2 / 122, 30: 53.7 / 112, 100: 55.4 / 114. Without
-    spins in the library (and the validation dance not spun) 1 was best (49.1 / 109 against
-    54.1 / 110 at 10); on an earlier library a residual in the heading frame gave 60.9 mm at 1
-    against 59.8 in the hips' frame (kept)."""
+    1: 69.1 / 161, 10: 53.5 / 117, 30: 52.7 / 110 (with a spun idle in the library instead of
+    ``walk-fast``: 0.1: 82.8 / 211, 1: 71.2 / 170, 10: 55.2 / 122, 30: 53.7 / 112, 100: 55.4 /
+    114). Before the validation dance was spun, 1 was best (49.1 / 109 against 54.1 / 110 at
+    10); a residual in the heading frame instead of the hips' gave 60.9 against 59.8 mm."""
     skin_fade: float = 1.0
     """``ours``: how the skinning fades down the garment: a vertex at relative height h in the
     garment (1 at the top, 0 at the hem) keeps ``h ** skin_fade`` of the body's skinning
