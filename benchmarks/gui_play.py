@@ -2,7 +2,7 @@
 
 Usage (needs a display; under Xvfb this measures software Vulkan)::
 
-    DISPLAY=:99 python benchmarks/gui_play.py PROJECT [--seconds 20] [--burn]
+    DISPLAY=:99 python benchmarks/gui_play.py PROJECT [--seconds 20] [--view neural] [--burn]
 
 Opens the studio on a trained project (``dng demo`` output), plays its motion for
 ``--seconds`` with the live neural render on, then pauses and times a screenshot and an error
@@ -10,7 +10,10 @@ dialog. Frames the window asked Filament for but that were not drawn yet show up
 screenshot (three forced redraws, about 3.5 s when nothing is queued) and the dialog wait
 behind them. Prints the 3D-view and live-image frames shown per second, the neural renders
 made per second on the playback worker, the longest main-loop tick, and both waits.
-``--burn`` adds a thread that holds the GIL in a Python loop (what a proxy derivation does),
+``--view`` picks what the main area shows (``neural``: the neural viewport, its render size
+adapting to the machine; ``scene``: the 3D view with the 128 px live thumbnail; ``compare``);
+the neural viewport's render size (image pixels, and the view's size they are upscaled to) is
+printed with the frames shown. ``--burn`` adds a thread that holds the GIL in a Python loop (what a proxy derivation does),
 the condition under which callbacks from inside Open3D's tick stalled the window
 (docs/gui.md). ``DNG_GUI_PLAY_HZ`` / ``DNG_GUI_LIVE_HZ`` set the redraw limits being measured.
 """
@@ -30,6 +33,9 @@ def main() -> None:
     parser.add_argument("project", help="a trained project folder (dng demo output)")
     parser.add_argument("--seconds", type=float, default=20.0, help="seconds of play")
     parser.add_argument("--burn", action="store_true", help="a GIL-holding thread beside it")
+    parser.add_argument(
+        "--view", choices=("neural", "scene", "compare"), default="neural", help="main area"
+    )
     args = parser.parse_args()
 
     import open3d.visualization.gui as gui
@@ -47,6 +53,7 @@ def main() -> None:
     if not studio.num_frames:
         raise SystemExit(f"{args.project}: no motion loaded (is it a trained project?)")
     studio.set_live_render(True)
+    studio.set_view_mode(args.view)
     studio.wait_idle()
     if args.burn:
 
@@ -84,7 +91,11 @@ def main() -> None:
         f"redraw limits while playing: 3D view {PLAY_REDRAW_HZ:g} Hz, live image "
         f"{LIVE_REDRAW_HZ:g} Hz; GIL-holding thread: {args.burn}"
     )
-    print(f"played {played:.1f} s:")
+    print(f"played {played:.1f} s, main area: {studio.main_view()}:")
+    if studio.neural_image is not None and studio.main_view() != "scene":
+        h, w = studio.neural_image.shape[:2]
+        vw, vh = studio.view.main_size
+        print(f"  neural viewport        {w}x{h} px upscaled to {vw}x{vh} (render size at the end)")
     print(f"  3D view frames shown   {(studio.play_frames_shown - n3d) / played:6.1f} /s")
     print(f"  live images shown      {(studio.live_frames_shown - nlive) / played:6.1f} /s")
     print(f"  neural renders made    {(studio.render_count - nrender) / played:6.1f} /s")

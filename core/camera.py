@@ -357,6 +357,194 @@ def orbit_eye(target, radius: float, azimuth_rad: float, elevation_rad: float) -
     )
 
 
+def orbit_view(
+    eye: Sequence[float], target: Sequence[float], d_azimuth_rad: float, d_elevation_rad: float
+) -> np.ndarray:
+    """The eye (3,) float64 after turning it ``d_azimuth_rad`` around the vertical through
+    ``target`` and ``d_elevation_rad`` up, at the same distance (elevation kept within
+    +-85 degrees so the view never flips over the pole). What a drag does in a viewer."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    d = eye - target
+    radius = float(np.linalg.norm(d))
+    if radius <= 0.0 or not math.isfinite(radius):
+        raise InputError("the eye must differ from the target")
+    azimuth = math.atan2(d[0], d[2]) + d_azimuth_rad
+    elevation = math.asin(max(-1.0, min(1.0, d[1] / radius))) + d_elevation_rad
+    limit = math.radians(85.0)
+    return orbit_eye(target, radius, azimuth, max(-limit, min(limit, elevation)))
+
+
+def pan_view(
+    eye: Sequence[float], target: Sequence[float], right_m: float, up_m: float, up=(0.0, 1.0, 0.0)
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eye and target (3,) float64 both moved ``right_m`` along the view's right and ``up_m``
+    along its up (a pan: the view direction is kept)."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    R = look_at(eye, target, up)[:3, :3]  # rows: camera x (right), y (down), z (forward)
+    shift = right_m * R[0] - up_m * R[1]
+    return eye + shift, target + shift
+
+
+def dolly_view(eye: Sequence[float], target: Sequence[float], factor: float) -> np.ndarray:
+    """The eye (3,) float64 moved along the view so its distance to ``target`` is multiplied
+    by ``factor`` (> 0; < 1 zooms in), kept between 0.2 m and 50 m."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    if not factor > 0.0:
+        raise InputError(f"zoom factor must be > 0, got {factor}")
+    d = eye - target
+    radius = float(np.linalg.norm(d))
+    new = min(max(radius * factor, 0.2), 50.0)
+    return target + d * (new / radius)
+
+
+def spherical_path(
+    eyes: np.ndarray, targets: np.ndarray, times: np.ndarray, at: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eyes and targets of a keyed camera path at times ``at``, interpolated smoothly.
+
+    Each key's eye is written in spherical coordinates around its target (azimuth,
+    elevation, log distance); those and the targets are interpolated with a monotone cubic
+    (Fritsch-Carlson, so nothing overshoots the keys) over the key times, azimuth unwrapped
+    so the eye turns the short way round. The eye thus moves on a surface around the body
+    and never through it (its distance to the target stays between the keys' distances).
+
+    Parameters
+    ----------
+    eyes, targets : (K, 3) float
+        Key eyes and targets, world metres; K >= 1.
+    times : (K,) float
+        Key times, strictly increasing (seconds or frames).
+    at : (N,) float
+        Times to evaluate; clamped to the keys' span.
+
+    Returns
+    -------
+    (N, 3) float64 eyes, (N, 3) float64 targets.
+    """
+    eyes = np.asarray(eyes, np.float64).reshape(-1, 3)
+    targets = np.asarray(targets, np.float64).reshape(-1, 3)
+    times = np.asarray(times, np.float64).reshape(-1)
+    at = np.asarray(at, np.float64).reshape(-1)
+    k = len(eyes)
+    if k == 0 or len(targets) != k or len(times) != k:
+        raise InputError(f"a camera path needs K >= 1 keys with eyes, targets and times, got {k}")
+    if not (np.isfinite(eyes).all() and np.isfinite(targets).all() and np.isfinite(times).all()):
+        raise InputError("camera path keys contain NaN or infinite values")
+    if k > 1 and not (np.diff(times) > 0).all():
+        raise InputError("camera path key times must be strictly increasing")
+    d = eyes - targets
+    r = np.linalg.norm(d, axis=1)
+    if (r <= 0).any():
+        raise InputError("a camera path key has its eye on its target")
+    if k == 1:
+        return np.repeat(eyes, len(at), 0), np.repeat(targets, len(at), 0)
+    az = np.unwrap(np.arctan2(d[:, 0], d[:, 2]))
+    el = np.arcsin(np.clip(d[:, 1] / r, -1.0, 1.0))
+    x = np.clip(at, times[0], times[-1])
+    channels = np.column_stack([az, el, np.log(r), targets])
+    out = np.column_stack([_monotone_cubic(times, c, x) for c in channels.T])
+    eye = np.stack(
+        [
+            orbit_eye(tg, math.exp(lr), a, e)
+            for a, e, lr, tg in zip(out[:, 0], out[:, 1], out[:, 2], out[:, 3:])
+        ]
+    )
+    return eye.reshape(-1, 3), out[:, 3:]
+
+
+#: ``"format"`` of a keyed camera path file (``dng render --camera PATH.json``, the studio).
+CAMERA_PATH_FORMAT = "garment-studio/camera-path"
+
+
+@dataclass(frozen=True)
+class CameraKey:
+    """A key view of a camera path: at motion frame ``frame`` the camera is at ``eye`` looking
+    at ``target`` (world metres) with vertical field of view ``fov_deg``."""
+
+    frame: float
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    fov_deg: float = 40.0
+
+    def as_dict(self) -> dict:
+        return {
+            "frame": self.frame,
+            "eye": list(self.eye),
+            "target": list(self.target),
+            "fov_deg": self.fov_deg,
+        }
+
+
+def camera_keys_from_dict(data: dict, path: str | os.PathLike | None = None) -> list[CameraKey]:
+    """The keys of a camera path dict ``{"format": CAMERA_PATH_FORMAT, "keys": [{"frame",
+    "eye", "target", "fov_deg"?}, ...]}``, sorted by frame; ``InputError`` naming ``path``
+    on anything malformed (no keys, a repeated frame, NaN, the eye on the target)."""
+    if not isinstance(data, dict) or not isinstance(data.get("keys"), list):
+        raise InputError('a camera path needs a "keys" list', path)
+    keys = []
+    for i, k in enumerate(data["keys"]):
+        try:
+            key = CameraKey(
+                float(k["frame"]),
+                tuple(float(x) for x in k["eye"]),
+                tuple(float(x) for x in k["target"]),
+                float(k.get("fov_deg", 40.0)),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputError(f"camera path key {i} is malformed ({exc!r})", path) from None
+        values = np.array([key.frame, *key.eye, *key.target, key.fov_deg])
+        if len(key.eye) != 3 or len(key.target) != 3 or not np.isfinite(values).all():
+            raise InputError(f"camera path key {i}: eye/target need 3 finite numbers", path)
+        if not 1.0 <= key.fov_deg <= 170.0 or np.allclose(key.eye, key.target):
+            raise InputError(f"camera path key {i}: fov outside [1, 170] or eye on target", path)
+        keys.append(key)
+    if not keys:
+        raise InputError("the camera path has no keys", path)
+    keys.sort(key=lambda k: k.frame)
+    if len({k.frame for k in keys}) != len(keys):
+        raise InputError("two camera path keys share a frame", path)
+    return keys
+
+
+def camera_path_to_dict(keys: Sequence[CameraKey]) -> dict:
+    """The JSON-ready dict of a keyed camera path (inverse of :func:`camera_keys_from_dict`)."""
+    return {"format": CAMERA_PATH_FORMAT, "keys": [k.as_dict() for k in keys]}
+
+
+def path_cameras(
+    keys: Sequence[CameraKey], frames: Sequence[float], width: int, height: int
+) -> list[Camera]:
+    """The cameras of a keyed path at ``frames`` (:func:`spherical_path` for eye and target,
+    the field of view interpolated linearly; held before the first key and after the last)."""
+    if not keys:
+        raise InputError("the camera path has no keys")
+    times = np.array([k.frame for k in keys], np.float64)
+    at = np.asarray(frames, np.float64)
+    eyes, targets = spherical_path(
+        np.array([k.eye for k in keys]), np.array([k.target for k in keys]), times, at
+    )
+    fov = np.interp(at, times, [k.fov_deg for k in keys])
+    K = [intrinsics_from_fov(f, width, height) for f in fov]
+    return [Camera(k, look_at(e, t), width, height) for k, e, t in zip(K, eyes, targets)]
+
+
+def _monotone_cubic(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Fritsch-Carlson monotone cubic Hermite interpolation of (x, y) at ``at`` (within x)."""
+    h = np.diff(x)
+    delta = np.diff(y) / h
+    m = np.zeros_like(y)
+    m[0], m[-1] = delta[0], delta[-1]
+    for i in range(1, len(y) - 1):
+        if delta[i - 1] * delta[i] > 0:
+            w1, w2 = 2 * h[i] + h[i - 1], h[i] + 2 * h[i - 1]
+            m[i] = (w1 + w2) / (w1 / delta[i - 1] + w2 / delta[i])
+    i = np.clip(np.searchsorted(x, at, side="right") - 1, 0, len(x) - 2)
+    s = (at - x[i]) / h[i]
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    return h00 * y[i] + h10 * h[i] * m[i] + h01 * y[i + 1] + h11 * h[i] * m[i + 1]
+
+
 def random_cameras(
     n: int, seed: int | Sequence[int], config: CameraRigConfig = CameraRigConfig()
 ) -> list[Camera]:

@@ -14,16 +14,20 @@ from core.camera import (
     camera_from_dict,
     camera_to_dict,
     crop_camera,
+    dolly_view,
     intrinsics_from_fov,
     load_cameras,
     look_at,
     make_camera,
     orbit_path,
+    orbit_view,
+    pan_view,
     pixel_rays,
     project,
     random_cameras,
     resize_camera,
     save_cameras,
+    spherical_path,
     unproject,
 )
 from core.errors import InputError
@@ -205,3 +209,60 @@ def test_bad_camera_entries_raise_input_error(tmp_path, changes):
 def test_missing_camera_file(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         load_cameras(tmp_path / "none.json")
+
+
+# --------------------------------------------------------------------------------------------
+# viewer moves and keyed camera paths
+
+
+def test_orbit_view_keeps_the_distance_and_turns_round_the_vertical():
+    target = np.array([0.0, 0.9, 0.0])
+    eye = np.array([0.0, 0.9, 2.5])
+    turned = orbit_view(eye, target, math.pi / 2, 0.0)
+    np.testing.assert_allclose(turned, [2.5, 0.9, 0.0], atol=1e-12)
+    up = orbit_view(eye, target, 0.0, math.radians(30))
+    assert np.linalg.norm(up - target) == pytest.approx(2.5)
+    assert up[1] - 0.9 == pytest.approx(2.5 * math.sin(math.radians(30)))
+    over = orbit_view(eye, target, 0.0, math.radians(170))  # clamped short of the pole
+    assert math.degrees(math.asin((over[1] - 0.9) / 2.5)) == pytest.approx(85.0)
+    with pytest.raises(InputError):
+        orbit_view(target, target, 0.1, 0.0)
+
+
+def test_pan_and_dolly_move_the_view_not_its_direction():
+    eye, target = np.array([0.0, 1.0, 3.0]), np.array([0.0, 1.0, 0.0])
+    e2, t2 = pan_view(eye, target, 0.5, 0.25)
+    np.testing.assert_allclose(e2 - eye, [0.5, 0.25, 0.0], atol=1e-12)  # right is +x from +z
+    np.testing.assert_allclose(t2 - target, e2 - eye, atol=1e-12)
+    closer = dolly_view(eye, target, 0.5)
+    np.testing.assert_allclose(closer, [0.0, 1.0, 1.5], atol=1e-12)
+    assert np.linalg.norm(dolly_view(eye, target, 1e-6) - target) == pytest.approx(0.2)
+    with pytest.raises(InputError):
+        dolly_view(eye, target, 0.0)
+
+
+def test_spherical_path_hits_the_keys_and_goes_round_the_body():
+    target = np.array([0.0, 0.9, 0.0])
+    front, back = target + [0.0, 0.0, 2.5], target + [0.0, 0.0, -2.5]
+    side = target + [2.5, 0.0, 0.0]
+    eyes, targets = np.stack([front, side, back]), np.stack([target] * 3)
+    at = np.linspace(0.0, 2.0, 41)
+    e, t = spherical_path(eyes, targets, np.array([0.0, 1.0, 2.0]), at)
+    np.testing.assert_allclose(e[[0, 20, 40]], eyes, atol=1e-9)
+    np.testing.assert_allclose(t, np.repeat(target[None], 41, 0), atol=1e-12)
+    # a straight line front -> back would cross the body; the path keeps its distance
+    np.testing.assert_allclose(np.linalg.norm(e - target, axis=1), 2.5, atol=1e-9)
+    # smooth: no jump between samples larger than a few times the mean step
+    steps = np.linalg.norm(np.diff(e, axis=0), axis=1)
+    assert steps.max() < 1.5 * steps.mean()
+    # distances between keys stay between the keys' (monotone: no overshoot)
+    near = np.stack([target + [0.0, 0.0, 1.5], target + [1.5, 0.0, 0.0], target + [0, 0, -4.0]])
+    e, _ = spherical_path(near, targets, np.array([0.0, 1.0, 2.0]), at)
+    r = np.linalg.norm(e - target, axis=1)
+    assert r.min() >= 1.5 - 1e-9 and r.max() <= 4.0 + 1e-9
+    with pytest.raises(InputError):
+        spherical_path(eyes, targets, np.array([0.0, 0.0, 1.0]), at)
+    with pytest.raises(InputError):
+        spherical_path(eyes[:0], targets[:0], np.zeros(0), at)
+    one, _ = spherical_path(eyes[:1], targets[:1], np.zeros(1), at[:3])
+    np.testing.assert_allclose(one, np.repeat(eyes[:1], 3, 0))

@@ -13,17 +13,21 @@ import numpy as np
 import pytest
 
 from app.gui.model import (
+    CPU_RENDER_HEIGHTS,
     CameraPose,
     Eta,
     GuiSettings,
+    adapt_render_height,
     atlas_image,
+    cached_builtin_garment,
     camera_from_gl,
-    interpolate_path,
+    garment_cache_key,
     load_settings,
     loss_plot,
     proxy_plan,
     reatlas,
     save_settings,
+    view_image_size,
 )
 from app.gui.workers import CancelToken, Worker
 from core.camera import make_camera, project
@@ -117,14 +121,61 @@ def test_settings_from_bad_dict_fall_back_to_defaults():
     assert GuiSettings(camera={"eye": [1, 2]}).camera_pose() is None
 
 
-def test_interpolate_path_hits_the_keys():
-    a = CameraPose((0, 1, 3), (0, 1, 0), fov_deg=30)
-    b = CameraPose((3, 1, 0), (0, 1, 0), fov_deg=50)
-    path = interpolate_path([a, b], 5)
-    assert path[0] == a and path[-1].eye == b.eye and path[2].fov_deg == pytest.approx(40)
-    assert interpolate_path([a], 3) == [a] * 3
-    with pytest.raises(InputError):
-        interpolate_path([], 3)
+def test_neural_view_render_size_adapts_to_the_frame_time():
+    # 12 fps target: an 83 ms budget
+    assert adapt_render_height(128, 40.0, 900) == 160  # 40 * (160/128)^2 = 62 < 67: up
+    assert adapt_render_height(160, 70.0, 900) == 160  # fits, next would not: stay
+    assert adapt_render_height(256, 120.0, 900) == 224  # over budget: down one step
+    assert adapt_render_height(128, 500.0, 900) == CPU_RENDER_HEIGHTS[0]  # never below
+    assert adapt_render_height(256, 1.0, 900) == 256  # never above the CPU sizes
+    assert adapt_render_height(128, 1.0, 140) == 128  # nor above the view
+    assert adapt_render_height(128, 5.0, 850, gpu=True) == 850  # GPU: the view's size
+    assert view_image_size(128, 1.5) == (192, 128)
+    assert view_image_size(128, 0.01) == (16, 128)
+
+
+def test_builtin_garments_are_cached_by_name_params_and_code(tmp_path, monkeypatch):
+    from core.body.shape import BodyShape
+    from core.mesh import Mesh
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    made = []
+
+    def make(name, res, shape):
+        made.append((name, res))
+        v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32) * res
+        return Mesh(v, np.array([[0, 1, 2]], np.int64))
+
+    shape = BodyShape()
+    mesh, cached = cached_builtin_garment("skirt", 20.0, shape, make)
+    assert not cached and made == [("skirt", 20.0)]
+    again, cached = cached_builtin_garment("skirt", 20.0, shape, make)
+    assert cached and len(made) == 1
+    np.testing.assert_array_equal(again.vertices, mesh.vertices)
+    files = list((tmp_path / "garment-studio" / "garments").iterdir())
+    assert [f.name.startswith("skirt-") and f.suffix == ".npz" for f in files] == [True]
+    cached_builtin_garment("skirt", 10.0, shape, make)  # other parameters: made again
+    assert len(made) == 2
+    assert garment_cache_key("skirt", 20.0, shape) != garment_cache_key("skirt", 10.0, shape)
+    files[0].write_bytes(b"damaged")  # a damaged file is made again, not an error
+    _, cached = cached_builtin_garment("skirt", 20.0, shape, make)
+    assert not cached and len(made) == 3
+
+
+def test_view_mode_and_speed_settings_fall_back_when_unknown():
+    s = GuiSettings.from_dict({"view_mode": "wipe", "play_speed": 3.0, "loop": False})
+    assert (s.view_mode, s.play_speed, s.loop) == ("neural", 1.0, False)
+    s = GuiSettings.from_dict({"view_mode": "compare", "play_speed": 0.25})
+    assert (s.view_mode, s.play_speed) == ("compare", 0.25)
+
+
+def test_camera_path_keys_from_settings_sorted_by_frame():
+    a = {**CameraPose((0, 1, 3), (0, 1, 0), fov_deg=30).as_dict(), "frame": 20}
+    b = {**CameraPose((3, 1, 0), (0, 1, 0), fov_deg=50).as_dict(), "frame": 5}
+    old = CameraPose((0, 1, -3), (0, 1, 0)).as_dict()  # saved before keys had frames: index
+    keys = GuiSettings(camera_path=[a, b, {"eye": "bad"}, old, {**a, "eye": [1, 1, 1]}]).path_keys()
+    assert [k.frame for k in keys] == [3.0, 5.0, 20.0]
+    assert keys[2].eye == (0.0, 1.0, 3.0) and keys[1].fov_deg == 50.0
 
 
 def test_proxy_plan_and_atlas_only_update():
@@ -314,12 +365,52 @@ def test_playing_moves_the_scene_and_the_live_render_without_stalling(tour):
 
 
 @pytest.mark.gui
+def test_the_mannequin_shows_before_the_garment(tour):
+    first = tour[0]["first_seconds"]
+    assert first["body_shown_s"] is not None and first["garment_shown_s"] is not None
+    assert first["body_shown_s"] <= first["garment_shown_s"]
+
+
+@pytest.mark.gui
+def test_neural_viewport_follows_drags_and_scrubbing(tour):
+    """The main area shows the neural render at the view's aspect, upscaled; a drag on it
+    turns the camera (another picture), scrubbing changes the frame (another picture)."""
+    report, out = tour
+    assert report["opened_in_view"] == "neural" and report["neural_view"] == "neural"
+    n = report["neural"]
+    h, w = n["shape"][:2]
+    vw, vh = n["view_size"]
+    assert h in CPU_RENDER_HEIGHTS and abs(w / h - vw / vh) < 0.05
+    assert n["drag_diff"] > 2
+    assert n["scrub_frames"][0] != n["scrub_frames"][1] and n["scrub_diff"] > 0.5
+    assert n["play"]["shown_fps"] > 0.5 and "ms/frame" in n["play"]["stats"]
+    assert report["compare_shape"][1] > report["compare_shape"][0]  # two images side by side
+    for name in ("gui-neural.png", "gui-compare.png"):
+        assert (out / name).stat().st_size > 10_000
+
+
+@pytest.mark.gui
 def test_errors_export_and_settings(tour):
+    import imageio_ffmpeg
+    from PIL import Image
+
     report, out = tour
     assert "nonexistent" in report["error_shown"]
     assert report["usable_after_error"]
     assert (out / "gui-error.png").stat().st_size > 10_000
-    assert report["gif"] and report["obj"]
+    assert report["gif"] and report["obj"] and report["mp4"]
+    assert "wrote" in report["export_label"] and "path.mp4" in report["export_label"]
+    assert (out / "gui-export.png").stat().st_size > 10_000
+    with Image.open(out / "path.gif") as gif:
+        assert gif.n_frames == 6 and gif.size == (96, 96)
+    reader = imageio_ffmpeg.read_frames(str(out / "path.mp4"))
+    assert next(reader)["size"][0] > 96  # the reference beside the neural render
+    cancelled = report["cancelled"]
+    assert "cancelled" in cancelled["label"] and not cancelled["file"]
+    assert cancelled["leftovers"] == []  # atomic: no temporary left behind
+    keys = report["path_json"]["keys"]
+    assert report["path_json"]["format"] == "garment-studio/camera-path"
+    assert [k["frame"] for k in keys] == [0, 5]
     restored, saved = report["restored"], report["saved_settings"]
     assert restored["frame"] == saved["frame"] == 3
     assert restored["motion"] == saved["motion"] == report["motion"]

@@ -84,6 +84,36 @@ def test_render_camera_file(smoke_project, tmp_path, dng):
         assert g.size == (20, 16)
 
 
+def test_render_keyed_camera_path(smoke_project, tmp_path, dng):
+    """The studio's saved camera path (keys at frames) drives ``--camera PATH.json``."""
+    from PIL import Image
+
+    from core.camera import CameraKey, camera_path_to_dict
+
+    keys = [
+        CameraKey(0, (0.0, 1.0, 2.5), (0.0, 0.8, 0.0)),
+        CameraKey(2, (2.5, 1.0, 0.0), (0.0, 0.8, 0.0), 35.0),
+    ]
+    path = tmp_path / "keys.json"
+    path.write_text(json.dumps(camera_path_to_dict(keys)))
+    out_dir = tmp_path / "k"
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", "--frames", 3, "--size", 32,
+        "--camera", path, "--out", out_dir,
+    )  # fmt: skip
+    assert code == 0, err
+    frames = [np.asarray(Image.open(p), np.float32) for p in sorted(out_dir.iterdir())]
+    assert len(frames) == 3 and frames[0].shape == (32, 32, 3)
+    assert np.abs(frames[0] - frames[2]).mean() > 1  # front, then the side
+    bad = tmp_path / "bad-keys.json"
+    bad.write_text(json.dumps({"keys": [keys[0].as_dict(), keys[0].as_dict()]}))
+    code, _, err = dng(
+        "render", smoke_project, "--motion", "walk", "--camera", bad, "--out", tmp_path / "b.gif"
+    )
+    assert code == 2 and str(bad) in err and "share a frame" in err
+    assert not (tmp_path / "b.gif").exists()
+
+
 def test_render_bad_inputs(smoke_project, tmp_path, dng):
     missing = tmp_path / "no-project"
     code, _, err = dng("render", missing, "--motion", "walk", "--out", tmp_path / "x.gif")

@@ -36,7 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="orbit|front|FILE.json",
         help="orbit: circle the body once over the clip; front: face it; a JSON file: one "
         "camera (core.camera camera_to_dict) or a list (frame t uses camera t, the last one "
-        "after the list ends), or a dng camera file. The built-in cameras follow the body.",
+        "after the list ends), a dng camera file, or a keyed camera path (the studio's "
+        '\'Save path JSON\': {"format": "garment-studio/camera-path", "keys": [{"frame", '
+        '"eye", "target", "fov_deg"}, ...]}, interpolated smoothly round the body). '
+        "The built-in cameras follow the body.",
     )
     p.add_argument(
         "--size",
@@ -76,11 +79,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def cameras_from_file(path) -> list:
-    """Cameras of a JSON file: one camera dict, a list of them, or a ``save_cameras`` file."""
+    """Cameras of a JSON file: one camera dict, a list of them, or a ``save_cameras`` file;
+    or the :class:`core.camera.CameraKey` s of a keyed camera path."""
     import json
     from pathlib import Path
 
-    from core.camera import camera_from_dict, load_cameras
+    from core.camera import (
+        CAMERA_PATH_FORMAT,
+        camera_from_dict,
+        camera_keys_from_dict,
+        load_cameras,
+    )
     from core.errors import InputError
 
     path = Path(path)
@@ -90,7 +99,9 @@ def cameras_from_file(path) -> list:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"not valid JSON ({exc})", path) from None
-    if isinstance(data, dict) and "format" in data:
+    if isinstance(data, dict) and (data.get("format") == CAMERA_PATH_FORMAT or "keys" in data):
+        cams = camera_keys_from_dict(data, path)
+    elif isinstance(data, dict) and "format" in data:
         cams = load_cameras(path)
     elif isinstance(data, list):
         cams = []
@@ -108,8 +119,11 @@ def cameras_from_file(path) -> list:
 
 def camera_for_frame(pb, t: int, n: int, args, file_cameras) -> object:
     """The camera of frame t of n."""
-    from core.camera import resize_camera
+    from core.camera import CameraKey, path_cameras, resize_camera
 
+    if file_cameras is not None and isinstance(file_cameras[0], CameraKey):
+        size = args.size or DEFAULT_SIZE
+        return path_cameras(file_cameras, [t], size, size)[0]
     if file_cameras is not None:
         cam = file_cameras[min(t, len(file_cameras) - 1)]
         if args.size is not None and cam.width != args.size:

@@ -39,15 +39,18 @@ import open3d.visualization.gui as gui
 from PIL import ImageGrab
 
 from app.gui.model import (
+    CPU_RENDER_HEIGHTS,
+    PLAY_SPEEDS,
     CameraPose,
     Cancelled,
     Eta,
     GuiSettings,
     RateMeter,
+    adapt_render_height,
     atlas_image,
+    cached_builtin_garment,
     camera_from_gl,
     format_seconds,
-    interpolate_path,
     latest_preview,
     load_settings,
     loss_plot,
@@ -59,10 +62,12 @@ from app.gui.model import (
     side_by_side,
     training_logs,
     unique_edges,
+    view_image_size,
 )
 from app.gui.model import save_settings as write_settings
 from app.gui.window import COLOURS, StudioWindow
 from app.gui.workers import CancelToken, Worker
+from core.camera import dolly_view, orbit_view, pan_view
 from core.errors import InputError
 from core.fileio import atomic_path
 
@@ -81,8 +86,13 @@ PLAY_REDRAW_HZ = float(os.environ.get("DNG_GUI_PLAY_HZ", "4"))
 #: only changes the image is cheap (20 s at 10 Hz left nothing queued: the screenshot after
 #: it took its usual 3.5 s), so it need not wait for the 3D view.
 LIVE_REDRAW_HZ = float(os.environ.get("DNG_GUI_LIVE_HZ", "15"))
-#: While playing, the reference (ground-truth) image is redrawn at most this often (s).
+#: While playing, the reference (ground-truth) image is redrawn at most this often (s), but in
+#: the comparison view, where it follows every frame.
 REFERENCE_EVERY_S = 0.5
+#: The neural viewport's render height is re-chosen at most this often (s).
+ADAPT_EVERY_S = 1.0
+#: Camera turn per pixel dragged on the neural view (radians).
+ORBIT_RAD_PER_PX = 0.01
 #: Procedural kinds offered in the motion list (``core.motion.procedural.PROCEDURAL_KINDS``;
 #: written out so the window opens without importing the motion code).
 PROCEDURAL = ("dance", "twirl", "walk", "circle-walk", "idle", "jump")
@@ -167,6 +177,14 @@ class Studio:
         self.live_frames_shown = 0  # live neural renders put on the screen
         self._shown_live = None  # newest live render not shown yet (while playing)
         self._live_disabled_reason = ""
+        # the neural viewport (main area)
+        self.gpu = False  # the playback worker renders on CUDA
+        self.neural_height = CPU_RENDER_HEIGHTS[0]
+        self.neural_image: np.ndarray | None = None  # the newest image shown there
+        self._frame_ms: float | None = None  # smoothed ms per neural render
+        self._last_adapt = 0.0
+        self._scene_stale = False  # the 3D view's meshes lag the frame (hidden meanwhile)
+        self.export_token: CancelToken | None = None
 
         # jobs
         self.job_token: CancelToken | None = None
@@ -182,6 +200,11 @@ class Studio:
         self._apply_settings_to_widgets()
         self.post(self._mark_open)
         self.view.scene.set_on_mouse(self._on_mouse)
+        self.body_shown_s: float | None = None  # when the mannequin first showed (process age)
+        self.garment_from_cache: bool | None = None
+        self.garment_shown_s: float | None = None  # when the first garment showed
+        self._loading: tuple[str, float] | None = None  # (what, since): status shows progress
+        self.show_mannequin()
         if project is not None:
             self.open_project(project)
         else:
@@ -221,6 +244,9 @@ class Studio:
             self._play_tick(now)
         if self.job_running:
             self._update_job_widgets()
+        if self._loading is not None:
+            what, since = self._loading
+            self.view.status.text = f"{what} ... {now - since:.0f} s"
 
     def run_loop(self) -> None:
         """The window's main loop (``dng gui``): Open3D's tick, then :meth:`service`, until
@@ -234,7 +260,12 @@ class Studio:
     def _play_tick(self, now: float) -> None:
         """Show the play clock's frame at most ``PLAY_REDRAW_HZ`` times a second and the
         newest live render at most ``LIVE_REDRAW_HZ`` times a second."""
-        if now - self._last_redraw >= 1.0 / PLAY_REDRAW_HZ:
+        if not self.settings.loop and self._play_position() >= self.num_frames - 1:
+            self._show_frame(self.num_frames - 1)
+            self.pause()
+            return
+        neural = self.main_view() != "scene"
+        if neural or now - self._last_redraw >= 1.0 / PLAY_REDRAW_HZ:
             t = self._play_position()
             if t != self.frame:
                 self._last_redraw = now
@@ -246,9 +277,12 @@ class Studio:
             self._shown_live = None
 
     def _play_position(self) -> int:
-        """The frame the play clock is at now."""
+        """The frame the play clock is at now (at the play speed; looping, or held on the
+        last frame)."""
         elapsed = time.perf_counter() - self._play_start[0]
-        return (self._play_start[1] + int(elapsed * self.fps)) % max(self.num_frames, 1)
+        t = self._play_start[1] + int(elapsed * self.fps * self.settings.play_speed)
+        n = max(self.num_frames, 1)
+        return t % n if self.settings.loop else min(t, n - 1)
 
     def _on_mouse(self, event) -> object:
         """Camera moves in the 3D view re-render the live view (after Open3D moved it)."""
@@ -265,6 +299,61 @@ class Studio:
         if self._last_view is None or not np.allclose(view, self._last_view, atol=1e-7):
             self._last_view = view
             self.render_now()
+
+    # ------------------------------------------------------------------ the neural viewport
+
+    def main_view(self) -> str:
+        """What the main area shows now: ``scene`` in the garment mode or without a trained
+        renderer, else the chosen view mode (``neural``, ``scene``, ``compare``)."""
+        if self.mode != "play" or self._live_disabled_reason or not self.settings.live_render:
+            return "scene"
+        return self.settings.view_mode
+
+    def set_view_mode(self, mode: str) -> None:
+        """Show the neural render (``neural``), the 3D scene (``scene``) or the neural render
+        beside the reference (``compare``) in the main area."""
+        if mode not in ("neural", "scene", "compare"):
+            raise InputError(f"unknown view mode {mode!r}")
+        self.settings = replace(self.settings, view_mode=mode)
+        self._update_main_view()
+        self.render_now(force_reference=True)
+
+    def _update_main_view(self) -> None:
+        shown = self.main_view()
+        if shown == "scene" and self._scene_stale:
+            self._scene_stale = False
+            self._show_frame(self.frame, render=False)
+        self.view.show_view_mode(shown)
+
+    def set_play_speed(self, speed: float) -> None:
+        if self.playing:
+            self._play_start = (time.perf_counter(), self.frame)
+        self.settings = replace(self.settings, play_speed=float(speed))
+
+    def set_loop(self, on: bool) -> None:
+        self.settings = replace(self.settings, loop=bool(on))
+
+    def neural_drag(self, dx_px: float, dy_px: float, pan: bool = False) -> None:
+        """A drag of (dx, dy) pixels on the neural view: orbit the camera around its target
+        (or pan it), as the 3D view does; both views keep one camera."""
+        pose = self.current_pose()
+        if pan:
+            h = max(self.view.main_size[1], 1)
+            distance = float(np.linalg.norm(np.subtract(pose.eye, pose.target)))
+            per_px = 2.0 * distance * np.tan(np.radians(pose.fov_deg) / 2.0) / h
+            eye, target = pan_view(pose.eye, pose.target, -dx_px * per_px, dy_px * per_px)
+        else:
+            eye = orbit_view(
+                pose.eye, pose.target, -dx_px * ORBIT_RAD_PER_PX, dy_px * ORBIT_RAD_PER_PX
+            )
+            target = pose.target
+        self.set_camera(eye, target, (0.0, 1.0, 0.0), pose.fov_deg)
+
+    def neural_zoom(self, steps: float) -> None:
+        """Zoom the neural view's camera: ``steps`` > 0 moves it closer (wheel notches)."""
+        pose = self.current_pose()
+        eye = dolly_view(pose.eye, pose.target, 0.9 ** float(steps))
+        self.set_camera(eye, pose.target, (0.0, 1.0, 0.0), pose.fov_deg)
 
     @property
     def idle(self) -> bool:
@@ -333,7 +422,11 @@ class Studio:
         if s.render_size in RENDER_SIZES:
             v.size_combo.selected_index = RENDER_SIZES.index(s.render_size)
         v.motion_frames.int_value = s.motion_frames
+        if s.play_speed in PLAY_SPEEDS:
+            v.speed_combo.selected_index = PLAY_SPEEDS.index(s.play_speed)
+        v.loop_check.checked = s.loop
         v.export_frames.int_value = s.export_frames
+        v.export_reference.checked = s.export_reference
         names = self.builtin_garments()
         if s.garment in names:
             v.garment_combo.selected_index = names.index(s.garment)
@@ -388,16 +481,40 @@ class Studio:
             "dress",
         ]
 
+    def show_mannequin(self) -> None:
+        """Show the rest body at once (before any garment is ready), framed by the camera."""
+        shape = self.settings.body_shape()
+
+        def job():
+            from core.body.mannequin import make_body
+
+            b = make_body(shape)
+            return b.vertices, b.faces
+
+        def done(out) -> None:
+            bv, bf = out
+            if self.garment is None:
+                self.view.set_mesh("rest_body", bv, bf, COLOURS["body"])
+                self.view.frame_camera(bv.min(0) - 0.1, bv.max(0) + 0.1)
+                self._apply_visibility()
+            self.body_shown_s = process_age()
+
+        self.proxy_worker.submit(job, done, self._fail, key="mannequin")
+
     def load_garment(self, name_or_path: str, resolution_mm: float | None = None) -> None:
         """Load a built-in garment by name or a mesh file, show it and derive its proxy."""
         name = str(name_or_path)
         res = resolution_mm or self.settings.garment_resolution_mm
         self.settings = replace(self.settings, garment=name, garment_resolution_mm=res)
         body = self.settings.body_shape()
-        self.view.status.text = f"loading {name} ..."
+        builtin = not Path(name).suffix
+        what = f"generating {name} (first time; cached after)" if builtin else f"loading {name}"
+        self._loading = (what, time.perf_counter())
+        self.view.status.text = f"{what} ..."
 
         def job():
-            if Path(name).suffix:
+            from_cache = None
+            if not builtin:
                 from core.mesh import load_mesh
 
                 mesh, _ = load_mesh(name)
@@ -405,18 +522,24 @@ class Studio:
                 from templates.garments import make_garment
 
                 try:
-                    mesh = make_garment(name, res, body)
+                    mesh, from_cache = cached_builtin_garment(name, res, body, make_garment)
                 except (KeyError, ValueError) as exc:
                     raise InputError(f"garment {name!r}: {exc}") from None
             from core.body.mannequin import make_body
 
             b = make_body(body)
-            return mesh, (b.vertices, b.faces)
+            return mesh, (b.vertices, b.faces), from_cache
 
-        self.proxy_worker.submit(job, self._garment_loaded, self._fail, key="garment")
+        def failed(exc: BaseException) -> None:
+            self._loading = None
+            self._fail(exc)
+
+        self.proxy_worker.submit(job, self._garment_loaded, failed, key="garment")
 
     def _garment_loaded(self, result) -> None:
-        mesh, (bv, bf) = result
+        mesh, (bv, bf), self.garment_from_cache = result
+        self._loading = None
+        self.garment_shown_s = self.garment_shown_s or process_age()
         self.garment = mesh
         self._garment_id += 1
         self.garment_name = self.settings.garment
@@ -548,6 +671,7 @@ class Studio:
     def _enter_mode(self, mode: str) -> None:
         self.mode = mode
         self._apply_visibility()
+        self._update_main_view()
 
     def _apply_visibility(self) -> None:
         s, v = self.settings, self.view
@@ -631,13 +755,15 @@ class Studio:
             from training.playback import Playback
 
             torch.set_num_threads(1)
-            pb = Playback(root, renderer_path=renderer_path)
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+            pb = Playback(root, renderer_path=renderer_path, device=device)
             if backdrop is not None:
                 pb.set_backdrop(backdrop)
             self.playback = pb
-            return pb.has_renderer()
+            return pb.has_renderer(), device == "cuda"
 
-        def done(has_renderer: bool) -> None:
+        def done(out) -> None:
+            has_renderer, self.gpu = out
             self._live_disabled_reason = "" if has_renderer else "no trained renderer yet"
             self.view.status.text = f"opened {root}" + (
                 "" if has_renderer else " (no trained renderer: live render off)"
@@ -721,12 +847,19 @@ class Studio:
 
         self.play_worker.submit(job, done, self._fail, key="motion")
 
-    def _show_frame(self, t: int) -> None:
+    def _show_frame(self, t: int, render: bool = True) -> None:
         if not self.num_frames:
             return
         t = int(t) % self.num_frames
         self.frame = t
         v = self.view
+        v.set_frame(t, self.num_frames, self.fps)
+        if self.main_view() != "scene":
+            # the 3D view is hidden: its meshes catch up when it is shown again
+            self._scene_stale = True
+            if render:
+                self.render_now()
+            return
         v.set_mesh("body", self.body_frames[t], self.body_faces, COLOURS["body"])
         v.set_mesh(
             "j2c", self.proxy_frames[t], self.proxy_faces, COLOURS["j2c"], uvs=self.proxy_uvs
@@ -736,8 +869,8 @@ class Studio:
         else:
             v.remove("sim")
         self._apply_visibility()
-        v.set_frame(t, self.num_frames)
-        self.render_now()
+        if render:
+            self.render_now()
 
     def play(self) -> None:
         if not self.num_frames:
@@ -799,13 +932,21 @@ class Studio:
         self.render_now()
 
     def live_camera(self):
-        """The 3D view's camera as a :class:`core.camera.Camera` at the live render size."""
+        """The 3D view's camera as a :class:`core.camera.Camera`: at the live render size
+        (square) when the 3D view is shown, else at the neural viewport's render height with
+        the view's aspect (half of it for each image of the comparison)."""
         view, proj, _ = self.view.gl_matrices()
-        size = self.settings.render_size
-        return camera_from_gl(view, proj, size, size)
+        shown = self.main_view()
+        if shown == "scene":
+            size = self.settings.render_size
+            return camera_from_gl(view, proj, size, size)
+        w, h = self.view.main_size
+        aspect = w / max(h, 1) / (2.0 if shown == "compare" else 1.0)
+        return camera_from_gl(view, proj, *view_image_size(self.neural_height, aspect))
 
     def set_live_render(self, on: bool) -> None:
         self.settings = replace(self.settings, live_render=bool(on))
+        self._update_main_view()
         self.render_now()
 
     def set_show_ground_truth(self, on: bool) -> None:
@@ -829,8 +970,14 @@ class Studio:
         t = self._play_position() if self.playing else self.frame
         cam = self.live_camera()
         now = time.perf_counter()
-        want_ref = self.settings.show_ground_truth and (
-            force_reference or not self.playing or now - self._last_reference > REFERENCE_EVERY_S
+        compare = self.main_view() == "compare"
+        want_ref = compare or (
+            self.settings.show_ground_truth
+            and (
+                force_reference
+                or not self.playing
+                or now - self._last_reference > REFERENCE_EVERY_S
+            )
         )
         if want_ref:
             self._last_reference = now
@@ -850,6 +997,14 @@ class Studio:
         self.render_meter.tick()
         self.render_count += 1
         self.last_timings = timings
+        ms = float(timings.get("total", 0.0))
+        self._frame_ms = ms if self._frame_ms is None else 0.7 * self._frame_ms + 0.3 * ms
+        now = time.perf_counter()
+        if self.main_view() != "scene" and now - self._last_adapt > ADAPT_EVERY_S:
+            self._last_adapt = now
+            self.neural_height = adapt_render_height(
+                self.neural_height, self._frame_ms, self.view.main_size[1], gpu=self.gpu
+            )
         if ref is not None:
             self.reference_image, self.reference_label = ref
         if self.playing:
@@ -861,6 +1016,21 @@ class Studio:
 
     def _show_live(self, t, image, timings) -> None:
         self.live_frames_shown += 1
+        main = self.main_view()
+        if main != "scene":
+            pair = [image]
+            ref = self.reference_image
+            if main == "compare" and ref is not None and ref.shape == image.shape:
+                pair.append(ref)
+            self.neural_image = side_by_side(pair) if len(pair) > 1 else image
+            self.view.set_image(self.view.neural, self.neural_image)
+            w, h = self.view.main_size
+            what = f"neural | {self.reference_label}" if len(pair) > 1 else "neural"
+            self.view.neural_stats.text = (
+                f"{what}  frame {t}: {image.shape[1]}x{image.shape[0]} px -> {w}x{h}, "
+                f"{timings.get('total', 0):.0f} ms/frame, {self.render_meter.rate:.1f} fps"
+                f"{' (GPU)' if self.gpu else ''}"
+            )
         shown = [image]
         if self.settings.show_ground_truth and self.reference_image is not None:
             if self.reference_image.shape == image.shape:
@@ -875,6 +1045,7 @@ class Studio:
 
     def _render_failed(self, exc: BaseException) -> None:
         self._live_disabled_reason = str(exc)
+        self._update_main_view()
         self.view.live_label.text = "live render off: see the message"
         self.show_error(exc)
 
@@ -1068,7 +1239,10 @@ class Studio:
     # ------------------------------------------------------------------------ export
 
     def add_path_key(self) -> None:
-        keys = [*self.settings.camera_path, self.current_pose().as_dict()]
+        """Key the 3D view's camera at the current frame (a key already there is replaced)."""
+        key = {**self.current_pose().as_dict(), "frame": int(self.frame)}
+        keys = [k for k in self.settings.camera_path if k.get("frame") != key["frame"]]
+        keys = sorted([*keys, key], key=lambda k: k.get("frame", 0))
         self.settings = replace(self.settings, camera_path=keys)
         self._update_path_label()
 
@@ -1077,59 +1251,106 @@ class Studio:
         self._update_path_label()
 
     def _update_path_label(self) -> None:
-        n = len(self.settings.camera_path)
+        keys = self.settings.path_keys()
+        frames = ", ".join(f"{k.frame:g}" for k in keys)
         self.view.path_label.text = (
-            f"camera path: {n} key view(s)" if n else "camera path: orbit (no key views)"
+            f"camera path: {len(keys)} key(s) at frame(s) {frames}"
+            if keys
+            else "camera path: orbit (no key views)"
         )
 
     def set_export_frames(self, n: int) -> None:
         self.settings = replace(self.settings, export_frames=int(n))
 
-    def export_gif(self, path: str, size: int | None = None) -> None:
-        """Neural renders along the camera path (key views, or an orbit when there are none)
-        from the current frame on, written as an animated GIF."""
+    def set_export_reference(self, on: bool) -> None:
+        self.settings = replace(self.settings, export_reference=bool(on))
+
+    def save_camera_path(self, path: str) -> Path:
+        """Write the keyed camera path as JSON (what ``dng render --camera PATH.json`` reads)."""
+        from core.camera import camera_path_to_dict
+        from core.fileio import write_json
+
+        keys = self.settings.path_keys()
+        if not keys:
+            raise InputError("the camera path is empty: add a key view first")
+        out = Path(path)
+        write_json(out, camera_path_to_dict(keys))
+        self.view.export_label.text = f"wrote {out}"
+        return out
+
+    def export_video(self, path: str, size: int | None = None) -> None:
+        """Neural renders from the current frame on (``export_frames`` frames) along the keyed
+        camera path (an orbit when there are no keys), the reference beside them when
+        ``export_reference`` is set, written as MP4 or GIF (by the suffix) atomically. The
+        export label shows progress and time left; :meth:`cancel_export` stops it and leaves
+        no file."""
+        from core.camera import path_cameras
+        from training.playback import FrameWriter
+
         if not self.num_frames:
             self.show_error(InputError("load a motion of a trained project first"))
             return
         n = self.settings.export_frames
         size = size or max(self.settings.render_size, 128)
-        keys = self.settings.path_poses()
-        poses = interpolate_path(keys, n) if keys else None
+        keys = self.settings.path_keys()
         start, fps = self.frame, self.settings.export_fps
+        beside = self.settings.export_reference
         out = Path(path)
-        if out.suffix.lower() != ".gif":
-            out = out.with_suffix(".gif")
-        self.view.export_label.text = f"exporting {n} frames ..."
+        if out.suffix.lower() not in (".gif", ".mp4"):
+            out = out.with_suffix(".mp4")
+        frames = [(start + i) % self.num_frames for i in range(n)]
+        cams = path_cameras(keys, frames, size, size) if keys else None
+        token, eta = CancelToken(), Eta(1)
+        self.export_token = token
+        self.view.export_label.text = f"exporting {n} frames to {out.name} ..."
+
+        def progress(done: int) -> None:
+            eta.update(done, n)
+            left = format_seconds(eta.seconds_left())
+            self.view.export_label.text = (
+                f"exporting {out.name}: {done}/{n} frames, {eta.progress:.0%}, about {left} left"
+            )
+            self.view.export_progress.value = eta.progress
 
         def job():
-            from PIL import Image
-
             pb = self.playback
-            frames = []
-            for i in range(n):
-                t = (start + i) % pb.num_frames
-                if poses is not None:
-                    cam = poses[i].camera(size, size)
-                else:
-                    cam = pb.default_camera(t, size, size, azimuth_deg=360.0 * i / n)
-                frames.append(Image.fromarray(pb.render(t, cam)))
-            out.parent.mkdir(parents=True, exist_ok=True)
-            tmp = out.with_name(out.name + ".tmp")
-            frames[0].save(
-                tmp,
-                format="GIF",
-                save_all=True,
-                append_images=frames[1:],
-                duration=int(1000 / fps),
-                loop=0,
-            )
-            os.replace(tmp, out)
+            with FrameWriter(out, fps) as writer:
+                for i, t in enumerate(frames):
+                    token.check()
+                    cam = (
+                        cams[i]
+                        if cams is not None
+                        else pb.default_camera(t, size, size, azimuth_deg=360.0 * i / n)
+                    )
+                    image = pb.render(t, cam)
+                    if beside:
+                        image = side_by_side([image, pb.reference_image(t, cam)[0]])
+                    writer.append(image)
+                    self.post(lambda d=i + 1: progress(d))
             return out
 
         def done(p) -> None:
+            self.export_token = None
+            self.view.export_progress.value = 1.0
             self.view.export_label.text = f"wrote {p}"
 
-        self.play_worker.submit(job, done, self._fail)
+        def failed(exc: BaseException) -> None:
+            self.export_token = None
+            if isinstance(exc, Cancelled):
+                self.view.export_label.text = f"export cancelled: {out.name} not written"
+                return
+            self._fail(exc)
+
+        self.play_worker.submit(job, done, failed)
+
+    #: The export button of older scripts: an animated GIF along the path.
+    def export_gif(self, path: str, size: int | None = None) -> None:
+        self.export_video(str(Path(path).with_suffix(".gif")), size)
+
+    def cancel_export(self) -> None:
+        """Stop a running video export before its next frame (no file is written)."""
+        if self.export_token is not None:
+            self.export_token.cancel()
 
     def export_proxy(self, path: str) -> None:
         """Write the derived proxy (with its UVs) as OBJ."""

@@ -14,7 +14,10 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -35,6 +38,49 @@ PROXY_VERTS_RANGE = (50, 4000)
 DETAIL_SCALE_RANGE = (0.0, 0.1)
 #: Live neural-render sizes offered.
 RENDER_SIZES = (64, 128, 256, 512)
+#: What the main area shows: (label, mode). ``neural``: the neural render at the view's size;
+#: ``scene``: the 3D view (body, proxy, simulated reference); ``compare``: the neural render
+#: beside the reference (the simulated target when the motion has one).
+VIEW_MODES = (("neural", "neural"), ("3D scene", "scene"), ("compare", "compare"))
+#: Play speeds offered on the timeline.
+PLAY_SPEEDS = (0.25, 0.5, 1.0, 1.5, 2.0)
+#: Image heights (px) the neural viewport renders at on CPU, upscaled to the view; it picks
+#: the largest the machine sustains at ``NEURAL_TARGET_FPS``.
+CPU_RENDER_HEIGHTS = (128, 160, 192, 224, 256)
+NEURAL_TARGET_FPS = 12.0
+
+
+def adapt_render_height(
+    current: int,
+    ms_per_frame: float,
+    view_height: int,
+    gpu: bool = False,
+    target_fps: float = NEURAL_TARGET_FPS,
+    heights: Sequence[int] = CPU_RENDER_HEIGHTS,
+) -> int:
+    """The neural viewport's next render height (px).
+
+    On a GPU: the view's height (full size). On CPU: one step of ``heights`` down when a frame
+    takes longer than the frame budget ``1000 / target_fps`` ms, one step up when the next
+    size (cost taken as proportional to its pixels) would still take under 80% of it; never
+    above the view's height.
+    """
+    if gpu:
+        return max(int(view_height), 16)
+    allowed = [h for h in heights if h <= max(view_height, heights[0])]
+    i = int(np.argmin([abs(h - current) for h in allowed]))
+    budget = 1000.0 / target_fps
+    if ms_per_frame > budget and i > 0:
+        i -= 1
+    elif i + 1 < len(allowed) and ms_per_frame * (allowed[i + 1] / allowed[i]) ** 2 < 0.8 * budget:
+        i += 1
+    return int(allowed[i])
+
+
+def view_image_size(height: int, aspect: float) -> tuple[int, int]:
+    """(width, height) of an image ``height`` px high with the view's ``aspect`` (w / h);
+    the width a multiple of 4 (at least 16)."""
+    return max(16, int(round(height * max(aspect, 0.1) / 4.0)) * 4), int(height)
 
 
 # ------------------------------------------------------------------------------------- cameras
@@ -157,32 +203,69 @@ def orbit_poses(
     return out
 
 
-def interpolate_path(keys: Sequence[CameraPose], n: int) -> list[CameraPose]:
-    """``n`` poses along the key poses (piecewise linear in eye, target and fov; ``n >= 2``
-    includes both ends). One key gives ``n`` copies of it."""
-    if not keys:
-        raise InputError("the camera path is empty: add a key view first")
-    if n < 1:
-        raise InputError(f"a camera path needs at least one frame, got {n}")
-    if len(keys) == 1 or n == 1:
-        return [keys[0]] * n
-    eyes = np.array([k.eye for k in keys], np.float64)
-    targets = np.array([k.target for k in keys], np.float64)
-    fovs = np.array([k.fov_deg for k in keys], np.float64)
-    s = np.linspace(0.0, len(keys) - 1, n)
-    out = []
-    for x in s:
-        i = min(int(np.floor(x)), len(keys) - 2)
-        a = x - i
-        out.append(
-            CameraPose(
-                tuple(map(float, (1 - a) * eyes[i] + a * eyes[i + 1])),
-                tuple(map(float, (1 - a) * targets[i] + a * targets[i + 1])),
-                keys[i].up,
-                float((1 - a) * fovs[i] + a * fovs[i + 1]),
-            )
-        )
-    return out
+# ------------------------------------------------------------------------------ garment cache
+
+#: Source folders whose code shapes a built-in garment: a change to any file there is a new
+#: code version, so cached garments made by older code are not used.
+GARMENT_CODE = ("templates/garments", "core/body")
+
+
+def garment_cache_dir() -> Path:
+    """Where generated built-in garments are kept: ``$XDG_CACHE_HOME/garment-studio/garments``
+    (``~/.cache`` when the variable is not set)."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "garment-studio" / "garments"
+
+
+def _code_version() -> str:
+    root = Path(__file__).resolve().parents[2]
+    h = hashlib.sha1()
+    for folder in GARMENT_CODE:
+        for f in sorted((root / folder).glob("*.py")):
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def garment_cache_key(name: str, resolution_mm: float, shape) -> str:
+    """The cache file name of a built-in garment: name, resolution, body shape and the
+    version of the code that makes it (:data:`GARMENT_CODE`)."""
+    params = json.dumps(
+        {"resolution_mm": float(resolution_mm), "body": asdict(shape)}, sort_keys=True
+    )
+    digest = hashlib.sha1(f"{params}|{_code_version()}".encode()).hexdigest()[:16]
+    return f"{name}-{digest}.npz"
+
+
+def cached_builtin_garment(name: str, resolution_mm: float, shape, make: Callable):
+    """The built-in garment ``make(name, resolution_mm, shape)`` (a ``core.mesh.Mesh``),
+    read from :func:`garment_cache_dir` when an equal one was made before, else made and
+    written there (atomically). An unreadable cache file is made again.
+
+    Returns ``(mesh, from_cache)``.
+    """
+    from core.fileio import atomic_path
+    from core.mesh import Mesh
+
+    path = garment_cache_dir() / garment_cache_key(name, resolution_mm, shape)
+    if path.is_file():
+        try:
+            with np.load(path) as z:
+                uvs = z["uvs"] if "uvs" in z.files else None
+                return Mesh(z["vertices"], z["faces"], uvs), True
+        except (OSError, ValueError, KeyError):
+            pass  # a damaged file: make it again
+    mesh = make(name, resolution_mm, shape)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {"vertices": mesh.vertices, "faces": mesh.faces}
+        if mesh.uvs is not None:
+            arrays["uvs"] = mesh.uvs
+        with atomic_path(path) as tmp:
+            np.savez(tmp, **arrays)
+    except OSError:
+        pass  # a read-only cache only costs the next launch the time
+    return mesh, False
 
 
 # ------------------------------------------------------------------------------------ settings
@@ -224,6 +307,12 @@ class GuiSettings:
     """Key poses of the export camera path (dicts); empty: an orbit."""
     export_frames: int = 24
     export_fps: float = 12.0
+    export_reference: bool = False
+    """Put the reference beside the neural render in exported videos."""
+    view_mode: str = "neural"
+    """What the main area shows when a motion plays (``VIEW_MODES``)."""
+    play_speed: float = 1.0
+    loop: bool = True
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -256,6 +345,10 @@ class GuiSettings:
         s = replace(default, **kwargs)
         if s.texture_size not in TEXTURE_SIZES:
             s = replace(s, texture_size=default.texture_size)
+        if s.view_mode not in [m for _label, m in VIEW_MODES]:
+            s = replace(s, view_mode=default.view_mode)
+        if s.play_speed not in PLAY_SPEEDS:
+            s = replace(s, play_speed=default.play_speed)
         return s
 
     def camera_pose(self) -> CameraPose | None:
@@ -264,14 +357,20 @@ class GuiSettings:
         except InputError:
             return None
 
-    def path_poses(self) -> list[CameraPose]:
-        out = []
-        for d in self.camera_path:
+    def path_keys(self) -> list:
+        """The camera path's :class:`core.camera.CameraKey` s by frame (malformed keys and
+        keys repeating a frame are dropped; a key saved without a frame sits at its index)."""
+        from core.camera import CameraKey
+
+        out = {}
+        for i, d in enumerate(self.camera_path):
             try:
-                out.append(CameraPose.from_dict(d))
-            except InputError:
+                pose = CameraPose.from_dict(d)
+                frame = float(d.get("frame", i))
+            except (InputError, TypeError, ValueError, AttributeError):
                 continue
-        return out
+            out.setdefault(frame, CameraKey(frame, pose.eye, pose.target, pose.fov_deg))
+        return [out[f] for f in sorted(out)]
 
     def body_shape(self):
         """The :class:`core.body.shape.BodyShape` of ``body`` (InputError if out of range)."""

@@ -4,9 +4,11 @@ save a screenshot of each step and the measurements into ``DIR/tour.json``, then
 The GUI tests run it in a subprocess (under Xvfb) and check what it wrote; the screenshots in
 ``docs/`` come from it. Steps: open the window (timed), load a built-in garment, derive the
 proxy and change its texture size (atlas only), an error dialog, open the project, load a
-motion, live neural render from two cameras, continuous play (with a screenshot after it),
-stepping frames and the live render's frame rate at 128 px (on its worker), the simulated
-proxy beside Joint2Coarse, GIF and OBJ export, settings saved and read back.
+motion, the neural viewport (a drag, a scrub, play, the comparison view), live neural render
+from two cameras, continuous play in the 3D view (with a screenshot after it), stepping frames
+and the live render's frame rate at 128 px (on its worker), the simulated proxy beside
+Joint2Coarse, camera keys at two frames with MP4 and GIF export along them, a cancelled export,
+the path as JSON, OBJ export, settings saved and read back.
 """
 
 from __future__ import annotations
@@ -26,6 +28,15 @@ def _png(path: Path, image: np.ndarray) -> None:
     from PIL import Image
 
     Image.fromarray(np.ascontiguousarray(image)).save(path)
+
+
+def _mean_diff(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute difference of two images (the second resized to the first's size)."""
+    from PIL import Image
+
+    if a.shape != b.shape:
+        b = np.asarray(Image.fromarray(b).resize((a.shape[1], a.shape[0])))
+    return float(np.abs(a.astype(np.float32) - b.astype(np.float32)).mean())
 
 
 def run_tour(project: str, out_dir: str, width: int = 1500, height: int = 940) -> int:
@@ -76,6 +87,14 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
         app.run_one_tick()
         studio.service()
     report["window_open_s"] = studio.open_seconds
+    # first seconds: the mannequin shows before the built-in garment is generated (or read
+    # from the cache: a second launch)
+    studio.wait_idle()
+    report["first_seconds"] = {
+        "body_shown_s": studio.body_shown_s,
+        "garment_shown_s": studio.garment_shown_s,
+        "garment_from_cache": studio.garment_from_cache,
+    }
     t0 = time.perf_counter()
 
     # 1. a built-in garment, its proxy, a texture-size change (only the atlas re-runs)
@@ -124,6 +143,53 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     studio.open_project(project)
     studio.wait_idle(timeout=180)
     report["open_project_s"] = time.perf_counter() - t1
+    report["opened_in_view"] = studio.main_view()
+    # 2b. the neural viewport (a project opens in it): a drag turns its camera, scrubbing changes the frame, play
+    note("2b. neural viewport: drag, scrub, play, compare")
+    report["neural_view"] = studio.main_view()
+    before = studio.neural_image.copy()
+    studio.neural_drag(80, -20)
+    studio.wait_idle()
+    dragged = studio.neural_image.copy()
+    _png(out / "neural-a.png", before)
+    _png(out / "neural-b.png", dragged)
+    f0 = studio.frame
+    studio.seek((f0 + studio.num_frames // 2) % studio.num_frames)
+    studio.wait_idle()
+    scrubbed = studio.neural_image.copy()
+    report["neural"] = {
+        "shape": list(before.shape),
+        "drag_diff": _mean_diff(before, dragged),
+        "scrub_frames": [f0, studio.frame],
+        "scrub_diff": _mean_diff(dragged, scrubbed),
+        "view_size": list(studio.view.main_size),
+    }
+    n_live, n_render = studio.live_frames_shown, studio.render_count
+    studio.play()
+    t_play = time.perf_counter()
+    studio.pump(PLAY_SECONDS)
+    studio.pause()
+    played = time.perf_counter() - t_play
+    studio.wait_idle()
+    report["neural"]["play"] = {
+        "seconds": played,
+        "shown_fps": (studio.live_frames_shown - n_live) / played,
+        "render_fps": (studio.render_count - n_render) / played,
+        "render_size": list(studio.neural_image.shape[:2]),
+        "stats": studio.view.neural_stats.text,
+    }
+    studio.screenshot(out / "gui-neural.png")
+    note("saved gui-neural.png")
+    studio.set_view_mode("compare")
+    studio.wait_idle()
+    report["compare_shape"] = list(studio.neural_image.shape)
+    studio.screenshot(out / "gui-compare.png")
+    note("saved gui-compare.png")
+
+    # the 3D view for the steps below; a switch back to the neural view froze software Vulkan
+    # (docs/gui.md), so the export renders from the 3D view's camera without one
+    studio.set_view_mode("scene")
+    studio.wait_idle()
     report["motion"] = studio.motion_name
     report["num_frames"] = studio.num_frames
     studio.seek(min(10, studio.num_frames - 1))
@@ -195,17 +261,42 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     report["live_benchmark"] = studio.live_benchmark
     report["has_sim"] = studio.sim_frames is not None
 
-    # 4. export: a GIF along a two-key camera path, the proxy OBJ (playback worker)
+    # 4. export: camera keys at two frames, an MP4 and a GIF along the smooth path between
+    # them (progress, atomic), a cancelled export (no file), the path as JSON, the proxy OBJ
     note("4. export")
+    studio.seek(0)
     studio.add_path_key()
+    studio.seek(5)
     studio.set_camera((1.8, 1.2, 1.6), (0.0, 0.85, 0.0))
     studio.add_path_key()
+    studio.seek(0)
     studio.set_export_frames(6)
+    studio.set_export_reference(True)
+    studio.export_video(str(out / "path.mp4"), size=96)
+    studio.wait_idle(timeout=120)
+    report["export_label"] = studio.view.export_label.text
+    studio.view.tabs.selected_tab_index = 3
+    studio.screenshot(out / "gui-export.png")
+    note("saved gui-export.png")
+    studio.set_export_reference(False)
     studio.export_gif(str(out / "path.gif"), size=96)
+    studio.set_export_frames(40)
+    studio.export_video(str(out / "cancelled.mp4"), size=96)
+    studio.cancel_export()  # queued behind the GIF: stops before its first frame
+    studio.wait_idle(timeout=120)
+    report["cancelled"] = {
+        "label": studio.view.export_label.text,
+        "file": (out / "cancelled.mp4").exists(),
+        "leftovers": sorted(p.name for p in out.iterdir() if "cancelled" in p.name),
+    }
+    studio.save_camera_path(str(out / "path.json"))
     studio.export_proxy(str(out / "proxy.obj"))
     studio.wait_idle(timeout=120)
+    studio.view.tabs.selected_tab_index = 0
+    report["mp4"] = (out / "path.mp4").is_file()
     report["gif"] = (out / "path.gif").is_file()
     report["obj"] = (out / "proxy.obj").is_file()
+    report["path_json"] = json.loads((out / "path.json").read_text())
 
     # 5. settings saved with the project (what a reopened window restores)
     note("5. settings saved")

@@ -22,9 +22,11 @@ import open3d.visualization.rendering as rendering
 
 from app.gui.model import (
     DETAIL_SCALE_RANGE,
+    PLAY_SPEEDS,
     PROXY_VERTS_RANGE,
     RENDER_SIZES,
     TEXTURE_SIZES,
+    VIEW_MODES,
     checker_texture,
 )
 
@@ -90,6 +92,19 @@ class StudioWindow:
         )
         w.add_child(self.scene)
 
+        # the neural viewport: the same place as the 3D view (one of them is shown); the
+        # image is upscaled to the widget, the last one stays until the next replaces it
+        self.neural = gui.ImageWidget(_image(np.full((128, 128, 3), 255, np.uint8)))
+        self.neural.set_on_mouse(self._on_neural_mouse)
+        self.neural.visible = False
+        w.add_child(self.neural)
+        self.neural_stats = gui.Label("neural view: open a trained project")
+        self.neural_stats.visible = False
+        w.add_child(self.neural_stats)
+        self.view_mode = "scene"
+        self.main_size = (width - int(PANEL_EM * self.em), height)
+        self._drag_at: tuple[float, float] | None = None
+
         # timeline under the 3D view
         self.timeline = gui.Horiz(0.5 * em, gui.Margins(0.5 * em, 0.25 * em, 0.5 * em, 0.25 * em))
         self.play_button = gui.Button("Play")
@@ -98,10 +113,29 @@ class StudioWindow:
         self.frame_slider = gui.Slider(gui.Slider.INT)
         self.frame_slider.set_limits(0, 1)
         self.frame_slider.set_on_value_changed(lambda v: controller.seek(int(v)))
-        self.frame_label = gui.Label("frame 0 / 0")
+        self.frame_label = gui.Label("frame 0 / 0   0.00 s")
+        self.mode_combo = gui.Combobox()
+        for label, _mode in VIEW_MODES:
+            self.mode_combo.add_item(label)
+        self.mode_combo.set_on_selection_changed(
+            lambda _t, i: controller.set_view_mode(VIEW_MODES[i][1])
+        )
+        self.speed_combo = gui.Combobox()
+        for sp in PLAY_SPEEDS:
+            self.speed_combo.add_item(f"{sp:g}x")
+        self.speed_combo.selected_index = PLAY_SPEEDS.index(1.0)
+        self.speed_combo.set_on_selection_changed(
+            lambda _t, i: controller.set_play_speed(PLAY_SPEEDS[i])
+        )
+        self.loop_check = gui.Checkbox("loop")
+        self.loop_check.checked = True
+        self.loop_check.set_on_checked(controller.set_loop)
+        self.timeline.add_child(self.mode_combo)
         self.timeline.add_child(self.play_button)
         self.timeline.add_child(self.frame_slider)
         self.timeline.add_child(self.frame_label)
+        self.timeline.add_child(self.speed_combo)
+        self.timeline.add_child(self.loop_check)
         w.add_child(self.timeline)
 
         # right panel
@@ -299,25 +333,48 @@ class StudioWindow:
         tab.add_child(row)
         self.path_label = gui.Label("camera path: orbit (no key views)")
         tab.add_child(self.path_label)
+        row = gui.Horiz(0.3 * em)
+        save_path = gui.Button("Save path JSON...")
+        save_path.set_on_clicked(
+            lambda: self._save_dialog("camera path", ".json", c.save_camera_path)
+        )
+        self.export_reference = gui.Checkbox("reference beside")
+        self.export_reference.set_on_checked(c.set_export_reference)
+        row.add_child(save_path)
+        row.add_child(self.export_reference)
+        tab.add_child(row)
         self.export_frames = gui.Slider(gui.Slider.INT)
         self.export_frames.set_limits(2, 240)
         self.export_frames.set_on_value_changed(lambda v: c.set_export_frames(int(v)))
         tab.add_child(_label_row("frames", self.export_frames, em))
         row = gui.Horiz(0.3 * em)
-        gif = gui.Button("Export GIF...")
+        mp4 = gui.Button("Export MP4...")
+        mp4.set_on_clicked(lambda: self._save_dialog("MP4", ".mp4", c.export_video))
+        gif = gui.Button("GIF...")
         gif.set_on_clicked(lambda: self._save_dialog("GIF", ".gif", c.export_gif))
         obj = gui.Button("Export proxy OBJ...")
         obj.set_on_clicked(lambda: self._save_dialog("OBJ", ".obj", c.export_proxy))
         save = gui.Button("Save settings")
         save.set_on_clicked(c.save_settings)
+        row.add_child(mp4)
         row.add_child(gif)
         row.add_child(obj)
         row.add_child(save)
         tab.add_child(row)
+        row = gui.Horiz(0.3 * em)
+        self.export_progress = gui.ProgressBar()
+        row.add_child(self.export_progress)
+        stop = gui.Button("Cancel export")
+        stop.set_on_clicked(c.cancel_export)
+        row.add_child(stop)
+        tab.add_child(row)
         self.export_label = gui.Label("")
         tab.add_child(self.export_label)
         tab.add_child(
-            gui.Label("keys: space play/pause, left/right step a frame,\nhome first frame")
+            gui.Label(
+                "keys: space play/pause, left/right step a frame,\nhome first frame; "
+                "drag the neural view: orbit,\nright/shift drag pan, ctrl drag/wheel zoom"
+            )
         )
         return tab
 
@@ -328,9 +385,57 @@ class StudioWindow:
         panel_w = int(PANEL_EM * self.em)
         bar_h = int(2.2 * self.em)
         left_w = r.width - panel_w
-        self.scene.frame = gui.Rect(r.x, r.y, left_w, r.height - bar_h)
+        main = gui.Rect(r.x, r.y, left_w, r.height - bar_h)
+        self.main_size = (main.width, main.height)
+        # While the neural image fills the main area the 3D view shrinks to one pixel under
+        # it. Hiding the SceneWidget, or drawing the image over a full-size one, froze software
+        # Vulkan (Filament waiting in SyncThreads, llvmpipe spinning) within seconds.
+        neural = self.view_mode != "scene"
+        self.scene.frame = gui.Rect(r.x, r.y, 1, 1) if neural else main
+        self.neural.frame = main
+        self.neural_stats.frame = gui.Rect(
+            r.x + 4, r.y + 4, min(left_w - 8, int(34 * self.em)), int(1.6 * self.em)
+        )
         self.timeline.frame = gui.Rect(r.x, r.y + r.height - bar_h, left_w, bar_h)
         self.panel.frame = gui.Rect(r.x + left_w, r.y, panel_w, r.height)
+
+    def show_view_mode(self, mode: str) -> None:
+        """Show the 3D view (``scene``) or the neural image (``neural``, ``compare``) in the
+        main area; the hidden one is not drawn."""
+        self.view_mode = mode
+        neural = mode != "scene"
+        self.neural.visible = neural
+        self.neural_stats.visible = neural
+        modes = [m for _label, m in VIEW_MODES]
+        if mode in modes:
+            self.mode_combo.selected_index = modes.index(mode)
+        self.window.set_needs_layout()
+        self.window.post_redraw()
+
+    def _on_neural_mouse(self, event) -> object:
+        """Drags on the neural image move the camera that renders it: left orbits, right or
+        shift+left pans, ctrl+left or the wheel zooms (as in the 3D view)."""
+        t = gui.MouseEvent.Type
+        if event.type == t.BUTTON_DOWN:
+            self._drag_at = (event.x, event.y)
+        elif event.type == t.DRAG and self._drag_at is not None:
+            dx, dy = event.x - self._drag_at[0], event.y - self._drag_at[1]
+            self._drag_at = (event.x, event.y)
+            if event.is_modifier_down(gui.KeyModifier.CTRL):
+                self.c.neural_zoom(dy / 100.0)
+            elif event.is_button_down(gui.MouseButton.RIGHT) or event.is_modifier_down(
+                gui.KeyModifier.SHIFT
+            ):
+                self.c.neural_drag(dx, dy, pan=True)
+            else:
+                self.c.neural_drag(dx, dy)
+        elif event.type == t.BUTTON_UP:
+            self._drag_at = None
+        elif event.type == t.WHEEL:
+            self.c.neural_zoom(event.wheel_dy)
+        else:
+            return gui.Widget.EventCallbackResult.IGNORED
+        return gui.Widget.EventCallbackResult.CONSUMED
 
     def _on_key(self, event) -> bool:
         """Window-level keys (before the focused widget): True consumes the key."""
@@ -505,10 +610,10 @@ class StudioWindow:
     def set_image(self, widget: gui.ImageWidget, arr: np.ndarray) -> None:
         widget.update_image(_image(arr))
 
-    def set_frame(self, t: int, n: int) -> None:
+    def set_frame(self, t: int, n: int, fps: float = 30.0) -> None:
         self.frame_slider.set_limits(0, max(n - 1, 1))
         self.frame_slider.int_value = int(t)
-        self.frame_label.text = f"frame {t} / {max(n - 1, 0)}"
+        self.frame_label.text = f"frame {t} / {max(n - 1, 0)}   {t / max(fps, 1e-6):.2f} s"
 
     def set_playing(self, playing: bool) -> None:
         self.play_button.text = "Pause" if playing else "Play"
