@@ -2,7 +2,7 @@
 
 For each clip (``dance``, ``walk``, ``jump``, ``twirl`` and CMU 01_01 retargeted, when the file
 is on this machine) and each quality (substeps x iterations), the bench simulates the garment
-(default: the ``long-skirt`` template at 42 mm, about 1k vertices, a proxy's size) and a
+(default: the ``long-skirt`` template at 50 mm, 1000 vertices, a proxy's size) and a
 reference run twice as fine in time and in iterations (2x the substeps, the solver iterations
 and the linear solver's iterations), and reports
 the vertex distance between the two (mean and 95th percentile over vertices and frames, mm),
@@ -39,8 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--garment", default="long-skirt", help="built-in garment or mesh file (long-skirt)"
     )
     parser.add_argument(
-        "--resolution", type=float, default=42.0,
-        help="built-in garment's edge length, mm (42: about 1k vertices for long-skirt)",
+        "--resolution", type=float, default=50.0,
+        help="built-in garment's edge length, mm (50: 1000 vertices for long-skirt)",
     )  # fmt: skip
     parser.add_argument(
         "--clips", default=",".join(DEFAULT_CLIPS), metavar="A,B,...",
