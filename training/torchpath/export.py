@@ -59,6 +59,11 @@ def make_bundle(
         raise InputError(
             "no trained renderer: train one first (dng train renderer)", pb.renderer_path
         )
+    if pb.joint2coarse.config.model != "paper":  # the player runs the paper's network in torch
+        raise InputError(
+            f"the torch-only path runs the paper's Joint2Coarse; this project's is model="
+            f"{pb.joint2coarse.config.model} (dng train joint2coarse PROJECT --set model=paper)"
+        )
     names = motions or [pb.config.train_motion.name]
     clips = {}
     for name in names:
