@@ -89,8 +89,12 @@ class PipelineConfig:
     """Texture size the proxy's UV atlas is packed for."""
     fabric: str = "cotton"
     """Fabric preset of the simulation (``core.sim.config``)."""
-    sim_substeps: int = 2
-    """Simulation substeps per frame at 30 fps."""
+    sim_substeps: int = 8
+    """Simulation substeps per frame at 30 fps ..."""
+    sim_iterations: int = 16
+    """... and solver iterations per substep: 8 x 16 is ``core.sim.config.QUALITY``
+    ``medium``, about the old 2 x 16's cost since each linear solve is one launch (``final``,
+    16 x 32, is the trustworthy one: a twirl flares; about 4x the cost). See ``dng bench sim``."""
     simulate_target: bool = True
     """Make the detailed target's motion too (needed for ground-truth images)."""
     target_mode: str = "embed"
@@ -293,6 +297,8 @@ PRESETS: dict[str, PipelineConfig] = {
             MotionSpec("cmu-01_01", "file", 300, path=str(CMU_CLIP), start_s=2.0),
         ),
         proxy_verts=2000,
+        sim_substeps=16,
+        sim_iterations=32,
         target_mode="simulate",
         views_per_frame=10,
         frame_stride=1,
@@ -533,7 +539,9 @@ def sim_config(config: PipelineConfig):
     project, and ``dng eval joint2coarse``'s, runs with these."""
     from core.sim import SimConfig
 
-    return SimConfig(fabric=config.fabric, substeps=config.sim_substeps)
+    return SimConfig(
+        fabric=config.fabric, substeps=config.sim_substeps, iterations=config.sim_iterations
+    )
 
 
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:

@@ -54,7 +54,7 @@ def register(subparsers) -> None:
     p.add_argument("--fabric", default="cotton", help="fabric preset: silk, cotton, denim")
     p.add_argument("--solver", default=None, help="style3d (default) or vbd")
     p.add_argument(
-        "--quality", default="final", help="final (16x32, default: converged), medium (8x16) "
+        "--quality", default="final", help="final (16x32, default: a twirl flares), medium (8x16) "
         "or draft (2x8) substeps x iterations; --substeps/--iterations override",
     )  # fmt: skip
     p.add_argument("--substeps", type=int, default=None, help="solver steps per 1/30 s")
