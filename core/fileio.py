@@ -12,6 +12,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from core.errors import InputError
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
@@ -74,3 +76,20 @@ def json_default(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def read_input_bytes(path: str | os.PathLike, kind: str) -> bytes:
+    """The whole of an input file, or an :class:`InputError` naming it: missing, a folder,
+    unreadable or empty. ``kind`` names what was expected ("a BVH file", "a glTF file")."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read()
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except IsADirectoryError:
+        raise InputError(f"is a directory, not {kind}", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path) from None
+    if not raw.strip():
+        raise InputError("empty file", path)
+    return raw

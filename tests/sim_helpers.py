@@ -12,16 +12,29 @@ from core.motion.motion import Motion
 from core.skeleton import rotation_about
 
 
-def frustum_skirt(around: int = 24, rings: int = 12, height: float = 1.70) -> Mesh:
-    """An open cone frustum from just above the hips (waist loop on top) to above the knees."""
+def frustum_skirt(
+    around: int = 24,
+    rings: int = 12,
+    height: float = 1.70,
+    *,
+    hem_height: float = 0.36,
+    hem_radius: float = 0.30,
+    folds: int = 0,
+    fold_depth: float = 0.0,
+) -> Mesh:
+    """An open cone frustum from just above the hips (waist loop on top) to above the knees
+    (``hem_height`` x ``height``). With ``folds`` > 0 the hem is gathered into that many radial
+    folds of ``fold_depth`` metres, fading to none at the waist: more cloth at the hem than its
+    hanging circle, as a skirt that can flare has."""
     h = height
-    y_top, y_bot = 0.57 * h, 0.36 * h
-    r_top, r_bot = 0.19, 0.30
+    y_top, y_bot = 0.57 * h, hem_height * h
+    r_top, r_bot = 0.19, hem_radius
     verts = []
     for j in range(rings):
         s = j / (rings - 1)
         y, r = y_top + (y_bot - y_top) * s, r_top + (r_bot - r_top) * s
         a = 2 * np.pi * np.arange(around) / around
+        r = r + fold_depth * s**1.5 * np.sin(folds * a)
         verts.append(np.stack([r * np.sin(a), np.full(around, y), r * np.cos(a)], axis=1))
     faces = []
     for j in range(rings - 1):

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
-from core.fileio import atomic_open
+from core.fileio import atomic_open, read_input_bytes
 from core.motion.mapping import is_body_joint
 from core.motion.motion import Motion
 from core.skeleton import Skeleton
@@ -122,17 +122,7 @@ def read_bvh(path: str | os.PathLike) -> BvhClip:
         number of frames are ignored.
     """
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as f:
-            raw = f.read()
-    except FileNotFoundError:
-        raise InputError("no such file", path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a BVH file", path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", path) from None
-    if not raw.strip():
-        raise InputError("empty file", path)
+    raw = read_input_bytes(path, "a BVH file")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:

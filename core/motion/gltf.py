@@ -46,6 +46,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from core.errors import InputError
+from core.fileio import read_input_bytes
 from core.motion.motion import Motion
 from core.skeleton import Skeleton, forward_kinematics
 
@@ -115,17 +116,7 @@ def read_gltf(path: str | os.PathLike) -> GltfFile:
         its ``byteLength``.
     """
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as f:
-            raw = f.read()
-    except FileNotFoundError:
-        raise InputError("no such file", path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a glTF file", path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", path) from None
-    if not raw.strip():
-        raise InputError("empty file", path)
+    raw = read_input_bytes(path, "a glTF file")
     blob = None
     if raw[:4] == _GLB_MAGIC:
         text, blob = _split_glb(raw, path)
