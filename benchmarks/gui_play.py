@@ -96,7 +96,8 @@ def main() -> None:
         h, w = studio.neural_image.shape[:2]
         vw, vh = studio.view.main_size
         print(f"  neural viewport        {w}x{h} px upscaled to {vw}x{vh} (render size at the end)")
-    print(f"  3D view frames shown   {(studio.play_frames_shown - n3d) / played:6.1f} /s")
+    shown = "3D view frames shown  " if studio.main_view() == "scene" else "frames advanced       "
+    print(f"  {shown} {(studio.play_frames_shown - n3d) / played:6.1f} /s")
     print(f"  live images shown      {(studio.live_frames_shown - nlive) / played:6.1f} /s")
     print(f"  neural renders made    {(studio.render_count - nrender) / played:6.1f} /s")
     print(f"  longest main-loop tick {longest:6.2f} s")

@@ -120,6 +120,7 @@ class StudioWindow:
         self.mode_combo.set_on_selection_changed(
             lambda _t, i: controller.set_view_mode(VIEW_MODES[i][1])
         )
+        self.mode_combo.selected_index = [m for _l, m in VIEW_MODES].index("scene")
         self.speed_combo = gui.Combobox()
         for sp in PLAY_SPEEDS:
             self.speed_combo.add_item(f"{sp:g}x")
@@ -402,6 +403,8 @@ class StudioWindow:
     def show_view_mode(self, mode: str) -> None:
         """Show the 3D view (``scene``) or the neural image (``neural``, ``compare``) in the
         main area; the hidden one is not drawn."""
+        if mode == self.view_mode:
+            return  # no relayout: every one is a chance for the software-Vulkan freeze
         self.view_mode = mode
         neural = mode != "scene"
         self.neural.visible = neural
