@@ -38,12 +38,10 @@ def main() -> None:
     )
     args = parser.parse_args()
 
-    import open3d.visualization.gui as gui
-
+    from app.gui import start_application
     from app.gui.controller import LIVE_REDRAW_HZ, PLAY_REDRAW_HZ, Studio
 
-    app = gui.Application.instance
-    app.initialize()
+    app = start_application()
     studio = Studio(None)
     while studio.open_seconds is None:
         app.run_one_tick()

@@ -37,13 +37,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--size must be WIDTHxHEIGHT, got {args.size!r}") from None
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         raise InputError("no display: set DISPLAY (for example run under xvfb-run)")
-    # Mesa's software Vulkan (lavapipe, what Xvfb machines have) rasterizes on its own llvmpipe
-    # threads by default; twice a window froze for good with those two threads spinning and the
-    # main thread waiting in Filament's SyncThreads (see tests/hang.py's reports). With 0 it
-    # rasterizes on the submitting thread: no such threads, and a tour ran as fast on 2 cores
-    # (35-37 s against 42 s; live neural images shown 11.0/s against 10.0/s). Hardware drivers
-    # ignore the variable; a user's own setting wins. It must be set before open3d loads Vulkan.
-    os.environ.setdefault("LP_NUM_THREADS", "0")
     if args.tour:
         from app.gui.tour import run_tour
 

@@ -12,13 +12,32 @@ Importing this package imports nothing heavy; :func:`run` does.
 from __future__ import annotations
 
 
-def run(project=None, *, width: int = 1500, height: int = 940) -> int:
-    """Open the studio window (on ``project`` when given) and run until it is closed."""
-    import open3d.visualization.gui as gui
+def start_application():
+    """Initialise Open3D's GUI application once and return it (every window entry point: the
+    studio, its tour, the play benchmark).
 
-    from app.gui.controller import Studio
+    Mesa's software Vulkan (lavapipe, what Xvfb machines have) rasterizes on its own llvmpipe
+    threads by default. Windows froze for good with those two threads spinning at 100% CPU and
+    the main thread waiting in Filament's ``SyncThreads`` (see ``tests/hang.py``'s reports).
+    ``LP_NUM_THREADS=0`` makes it rasterize on the submitting thread: there are no such threads,
+    and a tour on 2 cores ran as fast (35-37 s against 42 s; live neural images shown 11.0/s
+    against 10.0/s). Hardware drivers ignore the variable, and a user's own setting wins. It is
+    read when the Vulkan device is made, so it is set before ``initialize``.
+    """
+    import os
+
+    os.environ.setdefault("LP_NUM_THREADS", "0")
+    import open3d.visualization.gui as gui
 
     app = gui.Application.instance
     app.initialize()
+    return app
+
+
+def run(project=None, *, width: int = 1500, height: int = 940) -> int:
+    """Open the studio window (on ``project`` when given) and run until it is closed."""
+    from app.gui.controller import Studio
+
+    start_application()
     Studio(project, width=width, height=height).run_loop()
     return 0

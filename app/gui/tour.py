@@ -69,8 +69,7 @@ def run_tour(project: str, out_dir: str, width: int = 1500, height: int = 940) -
 
 
 def tour(project: str, out: Path, report: dict, width: int, height: int) -> None:
-    import open3d.visualization.gui as gui
-
+    from app.gui import start_application
     from app.gui.controller import Studio
     from app.gui.model import CameraPose, camera_from_gl, load_settings
 
@@ -80,8 +79,7 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
         """One progress line on stderr per step (tests show it when the tour fails)."""
         print(f"tour {time.perf_counter() - start:7.1f} s: {step}", file=sys.stderr, flush=True)
 
-    app = gui.Application.instance
-    app.initialize()
+    app = start_application()
     studio = Studio(None, width=width, height=height)
     while studio.open_seconds is None:
         app.run_one_tick()
