@@ -297,7 +297,9 @@ def tour(smoke_project, tmp_path_factory):
     Vulkan has frozen a window for good, rarely (once in CI; once in 12 tours on the 2 busy
     cores): no frame reached the screen after the first ones, Mesa's two llvmpipe threads spun
     at 100% CPU, and ``run_one_tick`` blocked, the main thread waiting in Filament's
-    ``SyncThreads`` (from ``Window::DrawOnce``).
+    ``SyncThreads`` (from ``Window::DrawOnce``). With ``LP_NUM_THREADS=0``
+    (:func:`app.gui.start_application`) it still froze once in about six tours, the submitting
+    thread spinning in llvmpipe's generated code instead.
     """
     root = tmp_path_factory.mktemp("gui")
     project = root / "project"

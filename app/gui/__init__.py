@@ -21,8 +21,11 @@ def start_application():
     the main thread waiting in Filament's ``SyncThreads`` (see ``tests/hang.py``'s reports).
     ``LP_NUM_THREADS=0`` makes it rasterize on the submitting thread: there are no such threads,
     and a tour on 2 cores ran as fast (35-37 s against 42 s; live neural images shown 11.0/s
-    against 10.0/s). Hardware drivers ignore the variable, and a user's own setting wins. It is
-    read when the Vulkan device is made, so it is set before ``initialize``.
+    against 10.0/s). It does not remove the freeze: one tour in about six still froze with it,
+    the submitting thread spinning in llvmpipe's generated code (no symbols; -inf floats on its
+    stack) and the main thread again in ``SyncThreads``. The cause is not known. Hardware
+    drivers ignore the variable, and a user's own setting wins. It is read when the Vulkan
+    device is made, so it is set before ``initialize``.
     """
     import os
 
