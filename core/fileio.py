@@ -93,3 +93,25 @@ def read_input_bytes(path: str | os.PathLike, kind: str) -> bytes:
     if not raw.strip():
         raise InputError("empty file", path)
     return raw
+
+
+def read_torch_payload(
+    path: str | os.PathLike, formats: str | tuple[str, ...], what: str, missing: str | None = None
+) -> dict:
+    """A dict saved with ``torch.save`` whose ``"format"`` is one of ``formats``, read with
+    ``torch.load(weights_only=True)`` onto the CPU; an :class:`InputError` naming the file when
+    it is missing (``missing`` or "no WHAT file here"), unreadable or of another format.
+    ``what`` names the kind of file ("Joint2Coarse model", "torch bundle")."""
+    import torch  # deferred: core imports without torch
+
+    formats = (formats,) if isinstance(formats, str) else tuple(formats)
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(missing or f"no {what} file here", path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds on corrupt files
+        raise InputError(f"cannot read {what}: {exc}", path) from None
+    if not isinstance(payload, dict) or payload.get("format") not in formats:
+        raise InputError(f"not a {what} file (expected format {' or '.join(formats)})", path)
+    return payload

@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from core.errors import InputError
-from core.fileio import atomic_path
+from core.fileio import atomic_path, read_torch_payload
 from training.joint2coarse.body_model import body_model_from_state
 from training.joint2coarse.config import Joint2CoarseConfig
 
@@ -201,15 +201,7 @@ def save_model(net: Joint2CoarseNet, path: str | os.PathLike) -> None:
 def load_model(path: str | os.PathLike) -> Joint2CoarseNet:
     """Read a file written by :func:`save_model`; the network comes back in eval mode."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("no Joint2Coarse model file here", path)
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds on corrupt files
-        raise InputError(f"cannot read Joint2Coarse model: {exc}", path) from None
-    if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
-        raise InputError(f"not a Joint2Coarse model file (expected format {MODEL_FORMAT})", path)
-    return net_from_payload(payload, path)
+    return net_from_payload(read_torch_payload(path, MODEL_FORMAT, "Joint2Coarse model"), path)
 
 
 def stored_config(payload: dict, path: str | os.PathLike | None = None) -> Joint2CoarseConfig:

@@ -24,9 +24,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import torch
-
 from core.errors import InputError
+from core.fileio import read_torch_payload
 
 #: Format tag of a bundle file.
 BUNDLE_FORMAT = "garment-torch-bundle/1"
@@ -36,14 +35,8 @@ _KEYS = ("joint2coarse", "renderer", "proxy", "body", "rig", "features", "clips"
 def load_bundle(path: str | os.PathLike) -> dict:
     """Read a bundle (see the module docstring); InputError naming the file when it is not one."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError("no torch bundle here (write one with dng export-torch)", path)
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds on corrupt files
-        raise InputError(f"cannot read torch bundle: {exc}", path) from None
-    if not isinstance(data, dict) or data.get("format") != BUNDLE_FORMAT:
-        raise InputError(f"not a torch bundle (expected format {BUNDLE_FORMAT})", path)
+    hint = "no torch bundle here (write one with dng export torch)"
+    data = read_torch_payload(path, BUNDLE_FORMAT, "torch bundle", hint)
     missing = [k for k in _KEYS if k not in data]
     if missing:
         raise InputError(f"torch bundle lacks {missing}", path)
