@@ -357,6 +357,29 @@ def orbit_eye(target, radius: float, azimuth_rad: float, elevation_rad: float) -
     )
 
 
+def follow_camera(
+    root: Sequence[float],
+    target_y: float,
+    radius: float,
+    fov_y_deg: float,
+    width: int,
+    height: int,
+    azimuth_deg: float = 0.0,
+    elevation_deg: float = 10.0,
+    distance_scale: float = 1.075,
+) -> Camera:
+    """A camera that follows a character: it looks at height ``target_y`` above the root's
+    (3,) horizontal position from ``radius * distance_scale`` metres, at ``azimuth_deg`` (0:
+    the front, +Z) and ``elevation_deg``, with a vertical field of view ``fov_y_deg``. What
+    the player's default view is (the data set's framing: ``training.pipeline.dataset_rig``)."""
+    target = np.array([root[0], target_y, root[2]], np.float64)
+    eye = orbit_eye(
+        target, radius * distance_scale, np.radians(azimuth_deg), np.radians(elevation_deg)
+    )
+    K = intrinsics_from_fov(fov_y_deg, int(width), int(height))
+    return Camera(K, look_at(eye, target), int(width), int(height))
+
+
 def orbit_view(
     eye: Sequence[float], target: Sequence[float], d_azimuth_rad: float, d_elevation_rad: float
 ) -> np.ndarray:

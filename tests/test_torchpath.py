@@ -25,6 +25,9 @@ from training.torchpath.shade import render_background
 MEAN_LEVELS = 0.05
 #: Share of pixels allowed to differ by more than 2 levels (measured: 0.0015% and 0.0029%).
 FAR_SHARE = 0.001
+#: Metres allowed between our Joint2Coarse in torch (float32 products in torch's order) and in
+#: numpy: measured 1.8e-7 m at most on the smoke project's three motions (CPU).
+OURS_ATOL = 1e-6
 
 ALL_CAMERAS = [
     *CAMERAS,
@@ -97,10 +100,10 @@ BLOCKED = (
 )  # fmt: skip
 
 
-def test_import_needs_only_torch_and_numpy(tmp_path):
-    """The path imports, and the torch-path render bench and the train bench run, with every
-    other library absent (a ``None`` in ``sys.modules`` is what Python reports as not
-    installed): what a machine with only torch and numpy sees."""
+def test_import_needs_only_torch_and_numpy(tmp_path, ours_bundle):
+    """The path imports, plays a bundle of our Joint2Coarse, and the torch-path render bench
+    and the train bench run, with every other library absent (a ``None`` in ``sys.modules`` is
+    what Python reports as not installed): what a machine with only torch and numpy sees."""
     code = f"""
 import sys
 for name in {BLOCKED!r}:
@@ -108,6 +111,10 @@ for name in {BLOCKED!r}:
 import training.torchpath
 from app.cli import main
 out = {str(tmp_path)!r}
+player = training.torchpath.TorchPlayer({str(ours_bundle)!r})
+player.set_clip(next(iter(player.clips)))
+assert player.joint2coarse.config.model == "ours"
+assert player.render(1, player.camera(1, 32, 32)).shape == (32, 32, 3)
 assert main(["bench", "render", "--path", "torch", "--size", "24", "--threads", "1",
              "--frames", "1", "--batch", "1", "--presets", "tiny", "--out", out]) == 0
 assert main(["bench", "train", "--preset", "tiny", "--size", "32", "--batch", "2",
@@ -156,6 +163,76 @@ def playback(smoke_project):
     pb = Playback(smoke_project)
     pb.set_motion(load_motion_for(pb.project, pb.config.train_motion.name))
     return pb
+
+
+@pytest.fixture(scope="module")
+def ours_file(smoke_project):
+    """The smoke project's own Joint2Coarse (model=ours), trained beside the paper's."""
+    return smoke_project / "joint2coarse" / "compare-ours" / "joint2coarse.pt"
+
+
+@pytest.fixture(scope="module")
+def ours_bundle(smoke_project, ours_file, tmp_path_factory):
+    from training.torchpath.export import export_bundle
+
+    path = tmp_path_factory.mktemp("torchpath") / "ours.torch.pt"
+    export_bundle(smoke_project, path, frames=12, joint2coarse=ours_file)
+    return path
+
+
+@pytest.fixture(scope="module")
+def ours_playback(smoke_project, ours_file):
+    from training.playback import Playback, load_motion_for
+
+    pb = Playback(smoke_project, joint2coarse_path=ours_file)
+    pb.set_motion(load_motion_for(pb.project, pb.config.train_motion.name, frames=12))
+    return pb
+
+
+def ours_descriptors(smoke_project, ours_file):
+    """Our model and the descriptors of the smoke project's motions: (model, (N, D) float32)."""
+    from training.joint2coarse import joint2coarse_inputs, load_model, motion_descriptors
+    from training.playback import Playback, load_motion_for
+
+    model = load_model(ours_file)
+    pb = Playback(smoke_project, joint2coarse_path=ours_file)
+    descs = []
+    for name in (pb.config.train_motion.name, *(m.name for m in pb.config.test_motions)):
+        joints, root_rot = joint2coarse_inputs(load_motion_for(pb.project, name))
+        descs.append(
+            motion_descriptors(joints, root_rot, model.config.window, model.config.stride)[0]
+        )
+    return model, np.concatenate(descs)
+
+
+def test_ours_in_torch_matches_numpy(smoke_project, ours_file):
+    """One prediction, two libraries: BodyResidualNet (torch) against BodyResidualModel.predict
+    (numpy), float64 descriptors and float32 ones."""
+    model, desc = ours_descriptors(smoke_project, ours_file)
+    ref = model.predict(desc)
+    net = model.to_torch()
+    assert_close(net(torch.from_numpy(desc)), ref, atol=OURS_ATOL, what="ours, torch float32 in")
+    out = net(torch.from_numpy(desc.astype(np.float64)))
+    assert out.dtype == torch.float32 and out.shape == ref.shape
+    assert_close(out, ref, atol=OURS_ATOL, what="ours, torch float64 in")
+
+
+def test_torch_path_plays_ours(ours_bundle, ours_playback):
+    """A bundle of our Joint2Coarse: the proxy as the numpy path's, and its images."""
+    pb = ours_playback
+    player = TorchPlayer(ours_bundle)
+    assert player.joint2coarse.config.model == "ours"
+    player.set_clip(pb.config.train_motion.name)
+    out = player.proxy(range(12))
+    for t in range(12):
+        assert_close(out[t], pb.proxy_vertices(t), atol=1e-5, what=f"ours proxy, frame {t}")
+    diffs = []
+    for t in range(3):
+        cam = pb.default_camera(t, 96, 96, azimuth_deg=-20.0)
+        assert player.camera(t, 96, 96, azimuth_deg=-20.0) == cam
+        diffs.append(np.abs(player.render(t, cam).numpy().astype(int) - pb.render(t, cam)))
+    d = np.stack(diffs)
+    assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
 
 
 def test_torch_path_matches_playback(bundle_file, playback):
@@ -283,6 +360,29 @@ def test_gpu_renderer_forward_matches_cpu(bf16, no_tf32):
 
 
 @pytest.mark.gpu
+def test_gpu_ours_matches_numpy(smoke_project, ours_file):
+    """Our Joint2Coarse on CUDA against the numpy prediction (CPU)."""
+    model, desc = ours_descriptors(smoke_project, ours_file)
+    out = model.to_torch().cuda()(torch.from_numpy(desc).cuda()).cpu()
+    assert_close(out, model.predict(desc), atol=OURS_ATOL, what="ours on CUDA")
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("model", ["paper", "ours"])
+def test_gpu_joint2coarse_matches_cpu(model, bundle_file, ours_bundle, no_tf32):
+    """Joint2Coarse inside the player (descriptor on the device -> world proxy), CUDA against
+    CPU, for the paper's network and ours."""
+    path = bundle_file if model == "paper" else ours_bundle
+    cpu, gpu = TorchPlayer(path), TorchPlayer(path, "cuda")
+    assert gpu.joint2coarse.config.model == model
+    name = next(iter(cpu.clips))
+    cpu.set_clip(name)
+    gpu.set_clip(name)
+    frames = range(min(cpu.num_frames, 12))
+    assert_close(gpu.proxy(frames).cpu(), cpu.proxy(frames), atol=1e-4, what=model)
+
+
+@pytest.mark.gpu
 def test_gpu_torch_path_matches_cpu(bundle_file, playback, no_tf32):
     pb = playback
     cpu = TorchPlayer(bundle_file)
@@ -311,6 +411,10 @@ def test_bench_render_torch_path_synthetic(tmp_path, dng):
     assert row["path"] == "torch" and row["size"] == 32 and row["batch"] == 2
     assert row["fps"] > 0 and row["batch_fps"] > 0 and row["joint2coarse_ms"] > 0
     assert row["torch"] == torch.__version__ and "cores" in row["device_name"]
+    (j2c,) = table["joint2coarse_rows"]  # Joint2Coarse's own row, streamed and batched
+    assert j2c["path"] == "torch" and j2c["model"] == "paper" and j2c["batch"] == 2
+    assert j2c["ms_per_frame"] > 0 and j2c["batch_ms_per_frame"] > 0
+    assert j2c["torch"] == torch.__version__ and j2c["device_name"] == row["device_name"]
     assert (tmp_path / "render.json").is_file()
 
 

@@ -458,6 +458,56 @@ def time_torch_path(player, camera, frames: int, batch: int) -> dict:
     }
 
 
+def time_joint2coarse_torch(player, frames: int, batch: int) -> dict:
+    """Joint2Coarse alone on the player's device: median ms per streamed frame (one frame per
+    call: descriptor row -> world proxy, what :meth:`TorchPlayer.render` runs) and ms per frame
+    in calls of ``batch`` consecutive frames."""
+    import torch
+
+    dev = player.device
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+
+    def median_ms(calls) -> float:
+        times = []
+        for i, f in enumerate(calls):
+            sync()
+            t0 = time.perf_counter()
+            player.proxy(f)
+            sync()
+            if i >= WARMUP or len(calls) <= WARMUP:
+                times.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(times))
+
+    batch = max(1, min(batch, player.num_frames))
+    starts = list(range(0, player.num_frames - batch + 1, batch)) or [0]
+    runs = max(frames, WARMUP + 3)
+    with torch.no_grad():
+        one = median_ms([[t % player.num_frames] for t in range(runs)])
+        many = median_ms([range(s0, s0 + batch) for s0 in (starts * runs)[:runs]])
+    return {"ms": one, "batch": batch, "batch_ms": many / batch}
+
+
+def joint2coarse_row(player, path: str, n_threads: int, device, timing: dict) -> dict:
+    """The Joint2Coarse row of the table (its own row: it does not depend on the image)."""
+    import torch
+
+    cuda = str(device).startswith("cuda")
+    return {
+        "path": path,
+        "model": player.joint2coarse.config.model,
+        "vertices": int(player.joint2coarse.n_vertices),
+        "threads": n_threads,
+        "device": str(device),
+        "ms_per_frame": timing["ms"],
+        "batch": timing.get("batch", 1),
+        "batch_ms_per_frame": timing.get("batch_ms"),
+        "target_ms": TARGET_J2C_MS_CUDA if cuda else None,
+        "meets_target": bool(timing["ms"] < TARGET_J2C_MS_CUDA) if cuda else None,
+        "device_name": device_name(device),
+        "torch": torch.__version__,
+    }
+
+
 def measure_torch(
     bundle: dict,
     setup_name: str,
@@ -469,8 +519,10 @@ def measure_torch(
     frames: int,
     options: dict,
     report=None,
+    j2c_rows: list | None = None,
 ) -> list[dict]:
-    """Rows of :func:`measure`'s form for the torch path (``path`` "torch", ``batch_fps``)."""
+    """Rows of :func:`measure`'s form for the torch path (``path`` "torch", ``batch_fps``);
+    :func:`joint2coarse_row` of each thread count appended to ``j2c_rows`` when given."""
     import torch
 
     from training.torchpath import TorchPlayer
@@ -478,6 +530,13 @@ def measure_torch(
     rows = []
     dev_type = "cuda" if str(device).startswith("cuda") else "cpu"
     clip = next(iter(bundle["clips"]))
+    if j2c_rows is not None:
+        player = TorchPlayer(with_renderer(bundle, presets[0]), device, **options)
+        player.set_clip(clip)
+        for n_threads in threads:
+            torch.set_num_threads(n_threads)
+            timing = time_joint2coarse_torch(player, frames, batch)
+            j2c_rows.append(joint2coarse_row(player, "torch", n_threads, device, timing))
     for name in presets:
         player = TorchPlayer(with_renderer(bundle, name), device, **options)
         player.set_clip(clip)
@@ -534,6 +593,26 @@ HEADER = (
     f"{'raster+feat':>11} {'network':>8} {'total ms':>8} {'fps':>6} {'target':>8} "
     f"{'+bg ms':>7} {'e2e fps':>7} {'batch':>5} {'batch fps':>9} {'load':>5}  device / torch"
 )
+
+
+J2C_HEADER = (
+    f"{'path':>5} {'Joint2Coarse':>12} {'verts':>6} {'thr':>3} {'ms/frame':>9} {'target':>9} "
+    f"{'batch':>5} {'ms/frame':>9}  device / torch"
+)
+
+
+def format_j2c_row(r: dict) -> str:
+    target = (
+        ""
+        if r["target_ms"] is None
+        else f"{'ok' if r['meets_target'] else 'MISS'} <{r['target_ms']:g}"
+    )
+    batched = "" if r["batch_ms_per_frame"] is None else f"{r['batch_ms_per_frame']:.3f}"
+    return (
+        f"{r['path']:>5} {r['model']:>12} {r['vertices']:>6} {r['threads']:>3} "
+        f"{r['ms_per_frame']:>9.3f} {target:>9} {r['batch']:>5} {batched:>9}  "
+        f"{r['device_name']} / torch {r['torch']}"
+    )
 
 
 def format_row(r: dict) -> str:
@@ -626,7 +705,7 @@ def run(args: argparse.Namespace) -> int:
     n = args.frames + WARMUP
     say = (lambda *a: None) if args.json else print
     load_before = os.getloadavg()
-    rows = []
+    rows, j2c_rows = [], []
     name = args.bundle or args.project or "synthetic"
     say(
         f"setup {name}; device {args.device} ({device_name(args.device)}), torch "
@@ -643,6 +722,13 @@ def run(args: argparse.Namespace) -> int:
         if args.project and args.presets is None and setup.model is not None:
             use = ["project", *presets]
         rows += measure(setup, use, sizes, threads, args.device, report=report)
+        for n_threads in threads:  # as measured beside the first preset's rows
+            first = next(r for r in rows if r["path"] == "numpy" and r["threads"] == n_threads)
+            j2c_rows.append(
+                joint2coarse_row(
+                    setup, "numpy", n_threads, args.device, {"ms": first["joint2coarse_ms"]}
+                )
+            )
     if "torch" in paths:
         if args.bundle:
             from training.torchpath import load_bundle
@@ -659,8 +745,13 @@ def run(args: argparse.Namespace) -> int:
             use = ["project", *presets]
         options = {"window": args.window, "channels_last": args.channels_last, "bf16": args.bf16}
         rows += measure_torch(
-            bundle, name, use, sizes, threads, args.device, args.batch, n, options, report
-        )
+            bundle, name, use, sizes, threads, args.device, args.batch, n, options, report,
+            j2c_rows,
+        )  # fmt: skip
+    say("")
+    say(J2C_HEADER)
+    for r in j2c_rows:
+        say(format_j2c_row(r))
     table = {
         "bench": "render",
         "setup": name,
@@ -672,6 +763,7 @@ def run(args: argparse.Namespace) -> int:
         "targets_fps": {f"{d}/{p}/{s}": v for (d, p, s), v in TARGETS_FPS.items()},
         "target_joint2coarse_ms_cuda": TARGET_J2C_MS_CUDA,
         "rows": rows,
+        "joint2coarse_rows": j2c_rows,
     }
     out = Path(args.out)
     write_json(out / "render.json", table)

@@ -24,6 +24,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="BVH files, project motions or procedural kinds (default: the training motion)",
     )  # fmt: skip
     x.add_argument("--frames", type=int, default=None, help="first frames of each motion")
+    x.add_argument(
+        "--joint2coarse", default=None, metavar="FILE",
+        help="another Joint2Coarse model file than the project's (paper or ours), e.g. "
+        "PROJECT/joint2coarse/compare-ours/joint2coarse.pt",
+    )  # fmt: skip
     x.set_defaults(handler=run_torch)
 
 
@@ -32,7 +37,9 @@ def run_torch(args: argparse.Namespace) -> int:
 
     from training.torchpath.export import export_bundle
 
-    bundle = export_bundle(args.project, args.out, args.motion, frames=args.frames)
+    bundle = export_bundle(
+        args.project, args.out, args.motion, frames=args.frames, joint2coarse=args.joint2coarse
+    )
     clips = ", ".join(f"{k} ({len(c['joints'])} frames)" for k, c in bundle["clips"].items())
     size = os.path.getsize(args.out) / 2**20
     print(f"wrote {args.out} ({size:.1f} MiB): clips {clips}")

@@ -20,6 +20,12 @@ the heading frame, as the sum of
 
 Both parts are a few matrix products per frame (no network), so it streams in well under a
 millisecond for a 2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
+
+The prediction's functions (:func:`bone_transforms`, :func:`motion_features`,
+:func:`predict_heading_frame`) take numpy arrays or torch tensors and compute with the library
+of what they are given (the same calls, in the same order): numpy for training and the studio,
+torch on any device for the torch-only path (:meth:`BodyResidualModel.to_torch`). Only
+:func:`body_rig` (scipy, the mannequin) is numpy-only.
 """
 
 from __future__ import annotations
@@ -98,89 +104,181 @@ def body_rig(shape: BodyShape, rest_proxy: np.ndarray, fade: float) -> tuple[np.
     )
 
 
-def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _xp(x):
+    """The array library of x: torch for a tensor, else numpy (the names both share)."""
+    return torch if isinstance(x, torch.Tensor) else np
+
+
+def _as(x, dtype: str):
+    """x as float64 or float32 (``dtype`` "float64" / "float32"), numpy or torch as it is."""
+    if isinstance(x, torch.Tensor):
+        return x.to(getattr(torch, dtype))
+    return np.asarray(x, getattr(np, dtype))
+
+
+def _new(like, kind: str, shape: tuple):
+    """float64 ``zeros`` or ``ones`` of ``shape``, or the identity (``eye``, shape ``(n,)``),
+    of like's library (and device)."""
+    if isinstance(like, torch.Tensor):
+        return getattr(torch, kind)(*shape, dtype=torch.float64, device=like.device)
+    return getattr(np, kind)(*shape) if kind == "eye" else getattr(np, kind)(shape)
+
+
+def _swing(a, b):
     """Minimal rotations taking unit vectors a to b, (..., 3) -> (..., 3, 3) (Rodrigues; a and
     b never opposite for the bones it is used on: clamped there)."""
-    v = np.cross(a, b)
-    c = np.sum(a * b, -1)
-    k = np.zeros(v.shape[:-1] + (3, 3))
+    xp = _xp(a)
+    v = torch.linalg.cross(a, b) if xp is torch else np.cross(a, b)
+    c = xp.sum(a * b, -1)
+    k = _new(a, "zeros", v.shape[:-1] + (3, 3))
     k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k -= np.swapaxes(k, -1, -2)
-    return np.eye(3) + k + (k @ k) / np.maximum(1.0 + c, 1e-3)[..., None, None]
+    k = k - xp.swapaxes(k, -1, -2)
+    return _new(a, "eye", (3,)) + k + (k @ k) / xp.clip(1.0 + c, 1e-3, None)[..., None, None]
 
 
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-9)
+def _unit(x):
+    if isinstance(x, torch.Tensor):
+        n = torch.linalg.vector_norm(x, dim=-1, keepdim=True)
+    else:
+        n = np.linalg.norm(x, axis=-1, keepdims=True)
+    return x / _xp(x).clip(n, 1e-9, None)
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+def _kabsch(src, dst):
     """Rotations (B, 3, 3) best taking point sets src (P, 3) onto dst (B, P, 3) (no centring:
     both are relative to the hips)."""
-    h = np.einsum("pi,bpj->bij", src, dst)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.matmul(np.swapaxes(vt, 1, 2), np.swapaxes(u, 1, 2))))
-    fix = np.ones((len(dst), 3))
+    xp = _xp(dst)
+    h = xp.einsum("pi,bpj->bij", src, dst)
+    u, _, vt = xp.linalg.svd(h)
+    d = xp.sign(xp.linalg.det(xp.matmul(xp.swapaxes(vt, 1, 2), xp.swapaxes(u, 1, 2))))
+    fix = _new(dst, "ones", (len(dst), 3))
     fix[:, 2] = d
-    return np.matmul(np.swapaxes(vt, 1, 2) * fix[:, None, :], np.swapaxes(u, 1, 2))
+    return xp.matmul(xp.swapaxes(vt, 1, 2) * fix[:, None, :], xp.swapaxes(u, 1, 2))
 
 
-def bone_transforms(pose: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
+def bone_transforms(pose, rest_joints):
     """Per-joint rigid transforms taking rest points to the current pose, heading frame.
 
     Parameters
     ----------
     pose : (B, 19, 3) float, the descriptor's first sample (canonical joints, root at origin)
     rest_joints : (20, 3) float, :func:`body_rig`
+        numpy arrays or torch tensors (both of one kind, on one device).
 
     Returns
     -------
-    (B, 20, 3, 4) float64: ``x -> M[:, :3] @ x + M[:, 3]``.
+    (B, 20, 3, 4) float64 of the inputs' kind: ``x -> M[:, :3] @ x + M[:, 3]``.
     """
+    xp = _xp(pose)
     b = len(pose)
-    cur = np.concatenate([np.zeros((b, 1, 3)), np.asarray(pose, np.float64)], axis=1)
-    rest = np.asarray(rest_joints, np.float64)
+    cur = xp.concatenate([_new(pose, "zeros", (b, 1, 3)), _as(pose, "float64")], axis=1)
+    rest = _as(rest_joints, "float64")
     ix = {n: i for i, n in enumerate(JOINT2COARSE_JOINTS)}
     anchors = [ix[n] for n in ("LeftUpLeg", "RightUpLeg", "Spine", "Spine1")]
     hips = _kabsch(rest[anchors], cur[:, anchors])  # (B, 3, 3)
-    rot = np.repeat(hips[:, None], len(ix), axis=1)  # joints the garment is not skinned to
+    # joints the garment is not skinned to turn with the hips
+    rot = hips[:, None] * _new(hips, "ones", (1, len(ix), 1, 1))
     j = [ix[n] for n in _CHILD]
     c = [ix[n] for n in _CHILD.values()]
-    turned = np.matmul(_unit(rest[c] - rest[j]), np.swapaxes(hips, 1, 2))  # (B, n, 3)
-    rot[:, j] = np.matmul(_swing(turned, _unit(cur[:, c] - cur[:, j])), hips[:, None])
+    turned = xp.matmul(_unit(rest[c] - rest[j]), xp.swapaxes(hips, 1, 2))  # (B, n, 3)
+    rot[:, j] = xp.matmul(_swing(turned, _unit(cur[:, c] - cur[:, j])), hips[:, None])
     for foot, leg in (("LeftFoot", "LeftLeg"), ("RightFoot", "RightLeg")):
         rot[:, ix[foot]] = rot[:, ix[leg]]
-    out = np.empty((b, len(ix), 3, 4))
-    out[..., :3] = rot
-    out[..., 3] = cur - np.einsum("bjik,jk->bji", rot, rest)
-    return out
+    move = cur - xp.einsum("bjik,jk->bji", rot, rest)
+    return xp.concatenate([rot, move[..., None]], axis=-1)
 
 
-def motion_features(desc: np.ndarray, num_samples: int) -> np.ndarray:
+def motion_features(desc, num_samples: int):
     """The residual's inputs from descriptors (see the module docstring).
 
     Parameters
     ----------
-    desc : (B, K * 57) float, :func:`~training.joint2coarse.descriptor.motion_descriptors`
+    desc : (B, K * 57) float numpy array or torch tensor,
+        :func:`~training.joint2coarse.descriptor.motion_descriptors`
     num_samples : int, K
 
     Returns
     -------
-    (B, F) float64
+    (B, F) float64 of desc's kind
     """
-    x = np.asarray(desc, np.float64).reshape(len(desc), num_samples, 19, 3)
+    xp = _xp(desc)
+    x = _as(desc, "float64").reshape(len(desc), num_samples, 19, 3)
     parts = [x[:, 0].reshape(len(x), -1)]
     vel = [k for k in VELOCITY_LAGS if k < num_samples]
     acc = [k for k in ACCELERATION_LAGS if 2 * k < num_samples]
     parts += [((x[:, 0] - x[:, k]) / k).reshape(len(x), -1) for k in vel]
     parts += [((x[:, 0] - 2 * x[:, k] + x[:, 2 * k]) / k**2).reshape(len(x), -1) for k in acc]
     hip_line = x[:, :, _DESC["LeftUpLeg"]] - x[:, :, _DESC["RightUpLeg"]]  # (B, K, 3)
-    angle = np.arctan2(-hip_line[..., 2], hip_line[..., 0])
+    angle = xp.arctan2(-hip_line[..., 2], hip_line[..., 0])
     centre = 0.5 * (x[:, :, _DESC["LeftUpLeg"]] + x[:, :, _DESC["RightUpLeg"]])
     for k in vel:
-        w = np.angle(np.exp(1j * (angle[:, 0] - angle[:, k]))) / k  # turning rate, rad/sample
+        w = xp.angle(xp.exp(1j * (angle[:, 0] - angle[:, k]))) / k  # turning rate, rad/sample
         vx, vz = ((centre[:, 0] - centre[:, k]) / k)[:, [0, 2]].T
-        parts.append(np.stack([w * w, w * vx, w * vz, vx * vx, vz * vz, vx * vz], -1))
-    return np.concatenate(parts, axis=1)
+        parts.append(xp.stack([w * w, w * vx, w * vz, vx * vx, vz * vz, vx * vz], -1))
+    return xp.concatenate(parts, axis=1)
+
+
+def skin_matrix(weights: np.ndarray, rest_vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear blend skinning of the rest proxy as one product's left side.
+
+    Parameters
+    ----------
+    weights : (V, 20) float, rest_vertices : (V, 3) float
+        :func:`body_rig`.
+
+    Returns
+    -------
+    used : (S,) int64, the joints with any weight
+    skin : (V, 4 S) float32, ``[w_vj x_v, w_vj]`` over the used joints
+    """
+    w = np.asarray(weights, np.float32)
+    used = np.flatnonzero(w.max(0) > 0)
+    x = np.concatenate([np.asarray(rest_vertices, np.float32), np.ones((len(w), 1))], axis=1)
+    skin = (w[:, used, None] * x[:, None, :]).reshape(len(w), -1)
+    return used, skin.astype(np.float32)
+
+
+def skinned_base(transforms, used, skin):
+    """The body-driven base: (B, 20, 3, 4) float64 :func:`bone_transforms`, ``used`` and
+    ``skin`` of :func:`skin_matrix` -> (B, V, 3) float32 skinned rest proxy, heading frame:
+    ``skin`` times the stacked ``[R_j^T; t_j]`` (4 S, 3) of each frame. numpy or torch."""
+    m = transforms[:, used]  # (B, S, 3, 4)
+    stacked = _as(_xp(m).swapaxes(m, -1, -2).reshape(len(m), -1, 3), "float32")
+    return _xp(m).matmul(skin, stacked)
+
+
+def residual_inputs(desc, feat_mean, feat_std, num_samples: int, clamp_z: float):
+    """(B, D) descriptors -> (B, F + 1) float64 normalised, clamped :func:`motion_features`
+    and a 1 for the bias (feat_mean, feat_std (F,)). numpy or torch."""
+    z = (motion_features(desc, num_samples) - feat_mean) / feat_std
+    return _xp(z).concatenate(
+        [_xp(z).clip(z, -clamp_z, clamp_z), _new(z, "ones", (len(z), 1))], axis=1
+    )
+
+
+def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
+    """Our prediction: the base plus the residual, turned from the hips' frame into the heading
+    frame.
+
+    Parameters
+    ----------
+    desc : (B, D) float descriptors (D = num_samples * 57)
+    params : ``rest_joints`` (20, 3), ``feat_mean``, ``feat_std`` (F,), ``coef`` (F + 1, V * 3)
+        float32 (:class:`BodyResidualModel`'s arrays), ``used`` (S,) int and ``skin``
+        (V, 4 S) float32 (:func:`skin_matrix`)
+        numpy arrays, or torch tensors on desc's device: the computation runs in their library.
+
+    Returns
+    -------
+    (B, V, 3) float32 heading-frame vertices.
+    """
+    xp, p = _xp(desc), params
+    desc = _as(desc, "float64")
+    m = bone_transforms(desc[:, :57].reshape(-1, 19, 3), p["rest_joints"])
+    x = _as(residual_inputs(desc, p["feat_mean"], p["feat_std"], num_samples, clamp_z), "float32")
+    residual = (x @ p["coef"]).reshape(len(desc), -1, 3)
+    hips_t = _as(xp.swapaxes(m[:, 0, :, :3], 1, 2), "float32")  # row vectors: r R^T
+    return skinned_base(m, p["used"], p["skin"]) + xp.matmul(residual, hips_t)
 
 
 class BodyResidualModel:
@@ -188,7 +286,8 @@ class BodyResidualModel:
 
     Quacks like :class:`~training.joint2coarse.model.Joint2CoarseNet` where prediction needs it
     (``config``, ``n_vertices``, ``descriptor_dim``, :meth:`follow_weights`, :meth:`predict`):
-    its output frame is the heading frame (no per-vertex tilt).
+    its output frame is the heading frame (no per-vertex tilt). :meth:`to_torch` gives the same
+    prediction as a torch module, for any device.
 
     Attributes (arrays float32)
     ----------
@@ -219,44 +318,67 @@ class BodyResidualModel:
         pose = np.asarray(desc, np.float64)[:, :57].reshape(-1, 19, 3)
         return bone_transforms(pose, self.arrays["rest_joints"])
 
-    def base(self, transforms: np.ndarray) -> np.ndarray:
-        """(B, 20, 3, 4) :meth:`transforms` -> (B, V, 3) float32 skinned rest proxy, heading
-        frame.
-
-        Linear blend skinning as one product: ``[w_vj x_v, w_vj]`` over the joints with any
-        weight (V, 4 S) times the stacked ``[R_j^T; t_j]`` (4 S, 3) of each frame.
-        """
+    def skin(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`skin_matrix` of the rig (built once)."""
         if self._skin is None:
-            w = self.arrays["weights"]
-            used = np.flatnonzero(w.max(0) > 0)
-            x = np.concatenate([self.arrays["rest_vertices"], np.ones((len(w), 1))], axis=1)
-            skin = (w[:, used, None] * x[:, None, :]).reshape(len(w), -1)
-            self._skin = (used, skin.astype(np.float32))
-        used, skin = self._skin
-        m = transforms[:, used]  # (B, S, 3, 4)
-        stacked = np.swapaxes(m, -1, -2).reshape(len(m), -1, 3).astype(np.float32)
-        return np.matmul(skin, stacked)
+            self._skin = skin_matrix(self.arrays["weights"], self.arrays["rest_vertices"])
+        return self._skin
+
+    def base(self, transforms: np.ndarray) -> np.ndarray:
+        """(B, 20, 3, 4) :meth:`transforms` -> (B, V, 3) float32 :func:`skinned_base`."""
+        return skinned_base(transforms, *self.skin())
 
     def features(self, desc: np.ndarray) -> np.ndarray:
-        """(B, D) -> (B, F + 1) normalised, clamped features and a 1 for the bias."""
-        a, c = self.arrays, self.config.clamp_z
-        z = (motion_features(desc, self.config.num_samples) - a["feat_mean"]) / a["feat_std"]
-        return np.concatenate([np.clip(z, -c, c), np.ones((len(z), 1))], axis=1)
+        """(B, D) -> (B, F + 1) :func:`residual_inputs`."""
+        a, c = self.arrays, self.config
+        return residual_inputs(desc, a["feat_mean"], a["feat_std"], c.num_samples, c.clamp_z)
+
+    def params(self) -> dict:
+        """The arrays :func:`predict_heading_frame` reads (numpy)."""
+        used, skin = self.skin()
+        names = ("rest_joints", "feat_mean", "feat_std", "coef")
+        return {"used": used, "skin": skin, **{k: self.arrays[k] for k in names}}
 
     def predict(self, desc: np.ndarray) -> np.ndarray:
-        """(B, D) float descriptors -> (B, V, 3) float32 heading-frame vertices: the base plus
-        the residual, turned from the hips' frame into the heading frame."""
+        """(B, D) float descriptors -> (B, V, 3) float32 heading-frame vertices
+        (:func:`predict_heading_frame`)."""
         desc = np.asarray(desc, np.float64)
         if desc.ndim != 2 or desc.shape[1] != self.descriptor_dim:
             raise InputError(f"descriptors must be (B, {self.descriptor_dim}), got {desc.shape}")
-        m = self.transforms(desc)
-        x = self.features(desc).astype(np.float32)
-        residual = (x @ self.arrays["coef"]).reshape(len(desc), -1, 3)
-        hips_t = np.swapaxes(m[:, 0, :, :3], 1, 2).astype(np.float32)  # row vectors: r R^T
-        return self.base(m) + np.matmul(residual, hips_t)
+        cfg = self.config
+        return predict_heading_frame(desc, self.params(), cfg.num_samples, cfg.clamp_z)
+
+    def to_torch(self) -> BodyResidualNet:
+        """The same prediction as a torch module (CPU; ``.to(device)`` moves it)."""
+        return BodyResidualNet(self)
 
     def state_dict(self) -> dict:
         return {k: torch.from_numpy(v.copy()) for k, v in self.arrays.items()}
+
+
+class BodyResidualNet(torch.nn.Module):
+    """:class:`BodyResidualModel`'s prediction in torch on any device: the arrays of
+    :meth:`BodyResidualModel.params` as buffers, :func:`predict_heading_frame` as forward.
+
+    ``config``, ``n_vertices``, ``descriptor_dim`` and :meth:`follow_weights` as the model's.
+    """
+
+    def __init__(self, model: BodyResidualModel):
+        super().__init__()
+        self.config = model.config
+        self.n_vertices = model.n_vertices
+        self.descriptor_dim = model.descriptor_dim
+        for name, value in model.params().items():
+            self.register_buffer(name, torch.from_numpy(np.ascontiguousarray(value)))
+
+    def follow_weights(self) -> None:
+        return None
+
+    def forward(self, desc: torch.Tensor) -> torch.Tensor:
+        """(B, D) float descriptors on the module's device -> (B, V, 3) float32 heading-frame
+        vertices."""
+        params = dict(self.named_buffers())
+        return predict_heading_frame(desc, params, self.config.num_samples, self.config.clamp_z)
 
 
 def fit_body_residual(

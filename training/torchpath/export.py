@@ -40,29 +40,30 @@ def export_bundle(
     motions: list[str] | None = None,
     *,
     frames: int | None = None,
+    joint2coarse: str | os.PathLike | None = None,
 ) -> dict:
     """Write ``out`` (atomically): :func:`make_bundle` of the project; returns the bundle."""
-    bundle = make_bundle(project, motions, frames=frames)
+    bundle = make_bundle(project, motions, frames=frames, joint2coarse=joint2coarse)
     with atomic_path(out) as tmp:
         torch.save(bundle, tmp)
     return bundle
 
 
 def make_bundle(
-    project: str | os.PathLike, motions: list[str] | None = None, *, frames: int | None = None
+    project: str | os.PathLike,
+    motions: list[str] | None = None,
+    *,
+    frames: int | None = None,
+    joint2coarse: str | os.PathLike | None = None,
 ) -> dict:
     """The project's models, proxy, body and the given motions (default: its training motion;
     any of :func:`training.playback.load_motion_for`: BVH files, project motions, procedural
-    kinds), the first ``frames`` of each when given."""
-    pb = Playback(project)
+    kinds), the first ``frames`` of each when given. ``joint2coarse``: another Joint2Coarse
+    model file than the project's (``paper`` or ``ours``, e.g. ``joint2coarse/compare-ours``)."""
+    pb = Playback(project, joint2coarse_path=joint2coarse)
     if not pb.has_renderer():
         raise InputError(
             "no trained renderer: train one first (dng train renderer)", pb.renderer_path
-        )
-    if pb.joint2coarse.config.model != "paper":  # the player runs the paper's network in torch
-        raise InputError(
-            f"the torch-only path runs the paper's Joint2Coarse; this project's is model="
-            f"{pb.joint2coarse.config.model} (dng train joint2coarse PROJECT --set model=paper)"
         )
     names = motions or [pb.config.train_motion.name]
     clips = {}

@@ -19,7 +19,9 @@ back. Two windows:
 - ``window="full"`` runs it on the whole image (:meth:`NeuralRenderer.render_pair` with
   ``crop=False``) with fixed rasterizer capacities: nothing is read back, shapes are static.
 
-Streaming keeps frame t-1's latent, like the numpy path. Pixels match
+Joint2Coarse is the bundle's model: the paper's network, or ours
+(:class:`~training.joint2coarse.body_model.BodyResidualNet`, the numpy model's own prediction
+functions run on torch tensors). Streaming keeps frame t-1's latent, like the numpy path. Pixels match
 :class:`training.playback.Playback` up to the rasterizers' ties (see the tests).
 """
 
@@ -30,10 +32,11 @@ import os
 import numpy as np
 import torch
 
-from core.camera import Camera, intrinsics_from_fov, look_at, orbit_eye
+from core.camera import Camera, follow_camera
 from core.errors import InputError
 from core.features import interpolate_torch, vertex_motion_features_torch
 from core.shading import ShadingConfig
+from training.joint2coarse.body_model import BodyResidualModel
 from training.joint2coarse.descriptor import motion_descriptors, tilt_rotvecs
 from training.joint2coarse.model import net_from_payload
 from training.renderer.config import RendererConfig
@@ -98,9 +101,11 @@ class TorchPlayer:
         self.bf16 = bf16
         self.channels_last = channels_last
         dev = self.device
-        self.joint2coarse = (
-            net_from_payload(data["joint2coarse"]).to(dev).eval().requires_grad_(False)
-        )
+        j2c = net_from_payload(data["joint2coarse"])
+        if isinstance(j2c, BodyResidualModel):  # ours: the same prediction as a torch module
+            j2c = j2c.to_torch()
+        follow = j2c.follow_weights()  # a host copy: read before the move to the device
+        self.joint2coarse = j2c.to(dev).eval().requires_grad_(False)
         config = RendererConfig.from_dict({"lr_decay_from": 1.0, **data["renderer"]["config"]})
         self.net = RenderNet(config)
         self.net.load_state_dict(data["renderer"]["generator"])
@@ -119,7 +124,6 @@ class TorchPlayer:
         self.sigma = float(data["features"]["sigma"])
         self.offsets = torch.as_tensor(list(data["features"]["frame_offsets"]), device=dev)
         self.clips = data["clips"]
-        follow = self.joint2coarse.follow_weights()
         self.follow = None if follow is None else torch.from_numpy(follow).to(dev)
         self.clip: str | None = None
         self._capacity: dict = {}
@@ -183,17 +187,13 @@ class TorchPlayer:
         elevation_deg: float = 10.0,
         distance_scale: float = 1.075,
     ) -> Camera:
-        """The camera :meth:`training.playback.Playback.default_camera` makes (host numbers)."""
-        root = self._root[int(t)]
-        target = np.array([root[0], self.rig["target_y"], root[2]], np.float64)
-        eye = orbit_eye(
-            target,
-            self.rig["radius"] * distance_scale,
-            np.radians(azimuth_deg),
-            np.radians(elevation_deg),
-        )
-        K = intrinsics_from_fov(self.rig["fov_y_deg"], int(width), int(height))
-        return Camera(K, look_at(eye, target), int(width), int(height))
+        """The camera :meth:`training.playback.Playback.default_camera` makes
+        (:func:`core.camera.follow_camera` at frame t's root; host numbers)."""
+        rig = self.rig
+        return follow_camera(
+            self._root[int(t)], rig["target_y"], rig["radius"], rig["fov_y_deg"], width, height,
+            azimuth_deg, elevation_deg, distance_scale,
+        )  # fmt: skip
 
     # -- rendering ---------------------------------------------------------------------------
 
