@@ -359,26 +359,85 @@ def test_gpu_renderer_forward_matches_cpu(bf16, no_tf32):
     assert diff.mean() < tol[0] and diff.max() < tol[1], (float(diff.mean()), float(diff.max()))
 
 
+def synthetic_bundles(frames: int = 12) -> dict:
+    """``dng bench render``'s synthetic bundle (the paper's network, random weights) and the
+    same with our model (random rig and residual, the skirt as its rest proxy): torch and numpy
+    only, so the ``gpu`` tests below run on a machine with nothing else."""
+    from app.bench.render import synthetic_bundle
+    from core.body.shape import mannequin_skeleton
+    from training.joint2coarse import Joint2CoarseConfig, canonical_joint_order
+    from training.joint2coarse.body_model import BodyResidualModel, motion_features
+    from training.joint2coarse.descriptor import motion_descriptors
+    from training.joint2coarse.model import MODEL_FORMAT
+
+    paper = synthetic_bundle(frames)
+    clip = paper["clips"]["synthetic"]
+    cfg = Joint2CoarseConfig(model="ours")
+    desc = motion_descriptors(
+        clip["joints"].numpy(), clip["root_rotations"].numpy(), cfg.window, cfg.stride
+    )[0]
+    skel = mannequin_skeleton()
+    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)[0]
+    g = np.random.default_rng(0)
+    n = paper["joint2coarse"]["n_vertices"]
+    weights = g.random((n, 20)) * (g.random(20) > 0.4)
+    weights[:, 0] += 0.1
+    feats = motion_features(desc, cfg.num_samples)
+    arrays = {
+        "weights": weights / weights.sum(1, keepdims=True),
+        "rest_joints": rest - rest[0],
+        "rest_vertices": g.normal(0.0, 0.2, (n, 3)),
+        "feat_mean": feats.mean(0),
+        "feat_std": np.maximum(feats.std(0), 1e-6),
+        "coef": g.normal(0.0, 1e-3, (feats.shape[1] + 1, 3 * n)),
+    }
+    model = BodyResidualModel(cfg, desc.shape[1], arrays)
+    payload = {
+        "format": MODEL_FORMAT,
+        "config": cfg.to_dict(),
+        "n_vertices": n,
+        "descriptor_dim": desc.shape[1],
+        "state_dict": model.state_dict(),
+    }
+    return {"paper": paper, "ours": {**paper, "joint2coarse": payload}, "desc": desc}
+
+
+def test_synthetic_ours_in_torch_matches_numpy():
+    """The CPU side of the ``gpu`` Joint2Coarse tests: the synthetic bundle of our model plays
+    its numpy prediction (measured 1.8e-7 m)."""
+    from training.joint2coarse.model import net_from_payload
+
+    bundles = synthetic_bundles()
+    model = net_from_payload(bundles["ours"]["joint2coarse"])
+    out = model.to_torch()(torch.from_numpy(bundles["desc"]))
+    assert_close(out, model.predict(bundles["desc"]), atol=OURS_ATOL, what="ours")
+    player = TorchPlayer(bundles["ours"])
+    player.set_clip("synthetic")
+    assert player.proxy(range(player.num_frames)).isfinite().all()
+
+
 @pytest.mark.gpu
-def test_gpu_ours_matches_numpy(smoke_project, ours_file):
+def test_gpu_ours_matches_numpy():
     """Our Joint2Coarse on CUDA against the numpy prediction (CPU)."""
-    model, desc = ours_descriptors(smoke_project, ours_file)
-    out = model.to_torch().cuda()(torch.from_numpy(desc).cuda()).cpu()
-    assert_close(out, model.predict(desc), atol=OURS_ATOL, what="ours on CUDA")
+    from training.joint2coarse.model import net_from_payload
+
+    bundles = synthetic_bundles()
+    model = net_from_payload(bundles["ours"]["joint2coarse"])
+    out = model.to_torch().cuda()(torch.from_numpy(bundles["desc"]).cuda()).cpu()
+    assert_close(out, model.predict(bundles["desc"]), atol=OURS_ATOL, what="ours on CUDA")
 
 
 @pytest.mark.gpu
 @pytest.mark.parametrize("model", ["paper", "ours"])
-def test_gpu_joint2coarse_matches_cpu(model, bundle_file, ours_bundle, no_tf32):
+def test_gpu_joint2coarse_matches_cpu(model, no_tf32):
     """Joint2Coarse inside the player (descriptor on the device -> world proxy), CUDA against
     CPU, for the paper's network and ours."""
-    path = bundle_file if model == "paper" else ours_bundle
-    cpu, gpu = TorchPlayer(path), TorchPlayer(path, "cuda")
+    bundle = synthetic_bundles()[model]
+    cpu, gpu = TorchPlayer(bundle), TorchPlayer(bundle, "cuda")
     assert gpu.joint2coarse.config.model == model
-    name = next(iter(cpu.clips))
-    cpu.set_clip(name)
-    gpu.set_clip(name)
-    frames = range(min(cpu.num_frames, 12))
+    cpu.set_clip("synthetic")
+    gpu.set_clip("synthetic")
+    frames = range(cpu.num_frames)
     assert_close(gpu.proxy(frames).cpu(), cpu.proxy(frames), atol=1e-4, what=model)
 
 
