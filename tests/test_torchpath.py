@@ -488,3 +488,13 @@ def test_export_torch_cli(smoke_project, tmp_path, dng):
     assert code == 2 and "nothing" in err and not (tmp_path / "c.pt").exists()
     code, _, err = dng("bench", "render", "--bundle", out, "--device", "cuda:0")
     assert code == 2 and ("CUDA" in err or torch.cuda.is_available())
+
+
+def test_export_torch_cli_other_joint2coarse(smoke_project, ours_file, tmp_path, dng):
+    out = tmp_path / "ours.pt"
+    args = ("export", "torch", smoke_project, "--out", out, "--frames", 3, "--joint2coarse")
+    code, _, err = dng(*args, ours_file)
+    assert code == 0, err
+    assert load_bundle(out)["joint2coarse"]["config"]["model"] == "ours"
+    code, _, err = dng(*args[:3], "--out", tmp_path / "x.pt", *args[5:], tmp_path / "none.pt")
+    assert code == 2 and "none.pt" in err and not (tmp_path / "x.pt").exists()

@@ -23,8 +23,8 @@ Joint2Coarse is the bundle's model: the paper's network, or ours
 (:class:`~training.joint2coarse.body_model.BodyResidualNet`, the numpy model's own prediction
 functions run on torch tensors; on CUDA its ``torch.linalg.svd`` makes the host wait for the
 device once per call, reading nothing back). Streaming keeps frame t-1's latent, like the numpy
-path. Pixels match
-:class:`training.playback.Playback` up to the rasterizers' ties (see the tests).
+path. Pixels match :class:`training.playback.Playback` up to the rasterizers' ties (see the
+tests and ``benchmarks/torchpath_match.py``).
 """
 
 from __future__ import annotations
