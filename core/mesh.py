@@ -253,6 +253,47 @@ def count_components(num_vertices: int, faces: np.ndarray) -> int:
     return len(np.unique(labels[np.unique(faces)]))
 
 
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges of a triangle mesh.
+
+    Parameters
+    ----------
+    faces : (F, 3) int
+
+    Returns
+    -------
+    (E, 2) int64
+        Each edge once, as a sorted pair; rows in lexicographic order.
+    """
+    e = np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    faces : (F, 3) int, counter-clockwise seen from outside
+
+    Returns
+    -------
+    (V, 3) float64
+        Unit length; zero for vertices no face uses. Each vertex sums its faces' (twice-area)
+        normals in face order, first as corner 0, then 1, then 2.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    tri = v[f]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    corners = f.T.reshape(-1)  # corner 0 of every face, then corner 1, then corner 2
+    out = np.stack(
+        [np.bincount(corners, np.tile(n[:, c], 3), minlength=len(v)) for c in range(3)], axis=1
+    )
+    return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-12)
+
+
 def load_mesh(path: str | os.PathLike) -> tuple[Mesh, RepairReport]:
     """Read OBJ/PLY/GLB/glTF/OFF/STL with trimesh, triangulate, validate and repair.
 

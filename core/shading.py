@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.camera import Camera, resize_camera
+from core.camera import Camera, resize_camera, world_to_camera
 from core.errors import InputError
+from core.features import interpolate
 from core.fileio import atomic_path
-from core.mesh import Mesh
+from core.mesh import Mesh, vertex_normals
 from core.raster import MeshScene, RasterConfig, check_mesh_arrays
 
 PATTERNS = ("solid", "checker", "stripes")
@@ -143,19 +144,6 @@ def to_uint8(c: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(np.asarray(c, np.float32) * 255.0), 0, 255).astype(np.uint8)
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (V, 3) float32, unit length (zero for unused vertices)."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 * area
-    n = np.zeros_like(v)
-    for k in range(3):
-        for c in range(3):
-            n[:, c] += np.bincount(f[:, k], fn[:, c], minlength=len(v))
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return (n / np.maximum(length, 1e-30)).astype(np.float32)
-
-
 def headlight_shading(
     fragments, vertices: np.ndarray, faces: np.ndarray, camera, ambient: float = 0.2
 ) -> np.ndarray:
@@ -172,10 +160,8 @@ def headlight_shading(
     camera : core.camera.Camera
     ambient : shade of a surface seen edge-on
     """
-    from core.camera import world_to_camera
-    from core.features import interpolate
-
-    normals = vertex_normals(vertices, faces) @ camera.R.T.astype(np.float32)  # camera space
+    normals = vertex_normals(vertices, faces).astype(np.float32)
+    normals = normals @ camera.R.T.astype(np.float32)  # camera space
     n = interpolate(fragments, faces, normals)  # (H, W, 3)
     h, w = fragments.face_id.shape
     # Direction to the eye of each pixel's surface point, in camera space.
@@ -207,7 +193,7 @@ class _Part:
             raise InputError(f"the {name} material has a {material.pattern} pattern but no UVs")
         self.uvs = None if mesh.uvs is None else np.asarray(mesh.uvs, np.float32)
         self.material = material
-        self.normals = vertex_normals(self.vertices, self.faces)
+        self.normals = vertex_normals(self.vertices, self.faces).astype(np.float32)
         v = self.vertices.astype(np.float64)
         f = self.faces
         fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from core.body.colliders import (
+    body_capsules,
     capsule_distance,
     pose_capsules,
     posed_capsules_for,
-    transform_capsules,
 )
 from core.body.mannequin import (
     HIP_LEVEL,
@@ -195,7 +195,7 @@ def test_extreme_combinations_make_full_bodies(shape):
     b = make_body(shape)
     _assert_valid_closed(b.vertices, b.faces)
     assert np.allclose(b.weights.sum(1), 1, atol=1e-5)
-    assert b.capsules.num_capsules > 20
+    assert b.capsules.count > 20
     crotch, _ = torso_range(shape)
     legs = b.vertices[:, 1] < crotch - 0.01 * shape.height
     right_leg = [b.skeleton.index(n) for n in ("RightUpLeg", "RightLeg", "RightFoot")]
@@ -380,12 +380,16 @@ def _axis_samples(endpoints: np.ndarray, n: int = 9) -> np.ndarray:
 
 
 @pytest.mark.parametrize("shape", [BodyShape(), HEAVY], ids=["default", "heavy"])
-def test_capsules_sit_inside_and_cover_the_skirt_region(shape):
+def test_body_carries_the_simulation_collider_with_its_axes_inside_the_skin(shape):
     import igl
 
     b = make_body(shape)
     c = b.capsules
-    assert c.num_capsules >= 30 and (c.radii > 0).all()
+    want = body_capsules(b.skeleton, shape)  # what the simulation collides with
+    assert c.names == want.names
+    for got, ref in ((c.joints, want.joints), (c.endpoints, want.endpoints), (c.radii, want.radii)):
+        assert np.array_equal(got, ref)
+    assert c.count >= 30 and (c.radii > 0).all()
     pts = _axis_samples(c.endpoints.astype(np.float64))
     sd = igl.signed_distance(
         pts.reshape(-1, 3),
@@ -393,47 +397,44 @@ def test_capsules_sit_inside_and_cover_the_skirt_region(shape):
         b.faces,
         igl.SIGNED_DISTANCE_TYPE_WINDING_NUMBER,
     )[0].reshape(pts.shape[:2])
-    # Each capsule's surface is inside the skin: axis depth >= radius (1 mm tolerance).
+    # Every capsule's axis runs inside the rendered skin (the capsules may bulge out of it).
     assert (sd < 0).all()
-    assert (-sd - c.radii[:, None] > -1e-3).all()
     # Skirt region (crotch to waist and the thighs): the skin is close to a capsule.
     h = shape.height
     v = b.vertices
     region = (v[:, 1] > 0.30 * h) & (v[:, 1] < 0.63 * h) & (np.abs(v[:, 0]) < shape.hip / 3)
     d = capsule_distance(v[region], c.endpoints, c.radii)
     assert region.sum() > 1000
-    assert (d > -1e-3).mean() > 0.99, "capsules poke through the skin"
-    assert np.percentile(d, 95) < 0.045 and np.median(d) < 0.015
+    assert np.abs(np.median(d)) < 0.02 and np.percentile(d, 95) < 0.01
 
 
 def test_capsules_follow_the_skeleton(body):
     c = body.capsules
     rot, root = _bent(body)
     pos, g = forward_kinematics(body.skeleton, rot, root)
-    posed = pose_capsules(c, pos, g)
-    assert posed.shape == (1, c.num_capsules, 2, 3)
-    # At rest they are where they were fitted.
+    transforms = skinning_transforms(body.skeleton, pos, g)
+    posed = pose_capsules(c, transforms)
+    assert posed.shape == (1, c.count, 2, 3)
+    # At rest they are where they were built.
     rpos, rg = forward_kinematics(body.skeleton, *_rest(body))
-    assert_close(pose_capsules(c, rpos, rg)[0], c.endpoints, atol=1e-6)
+    rest = pose_capsules(c, skinning_transforms(body.skeleton, rpos, rg))[0]
+    assert_close(rest, c.endpoints, atol=1e-6)
     # Posed like points skinned fully to their joint.
-    m = skinning_transforms(body.skeleton, pos, g)[0].astype(np.float64)
-    for k in range(c.num_capsules):
-        j = c.joints[k, 0]
+    m = transforms[0].astype(np.float64)
+    for k in range(c.count):
+        j = c.joints[k]
         want = c.endpoints[k] @ m[j, :3, :3].T + m[j, :3, 3]
         assert_close(posed[0, k], want, atol=1e-5, what=c.names[k])
-    # The shin capsules stay inside the posed shin's skin.
-    shin = [k for k, n in enumerate(c.names) if n.startswith("RightShin")]
+    # The shin capsule follows the posed shin's skin.
+    shin = [k for k, n in enumerate(c.names) if n == "RightLeg"]
     skin = pose_body(body, (rot, root))[0]
     on_shin = body.weights[:, body.skeleton.index("RightLeg")] > 0.9
     assert on_shin.sum() > 100
-    assert capsule_distance(skin[on_shin], posed[0, shin], c.radii[shin]).min() > -5e-3
+    d = capsule_distance(skin[on_shin], posed[0, shin], c.radii[shin])
+    assert np.median(np.abs(d)) < 0.02
     assert_close(posed_capsules_for(body, (rot, root)), posed, atol=1e-6)
-    transforms = skinning_transforms(body.skeleton, pos, g)
-    assert_close(transform_capsules(c, transforms), posed, atol=1e-5)
     with pytest.raises(InputError):
-        transform_capsules(c, transforms[:, :5])
-    with pytest.raises(InputError):
-        pose_capsules(c, pos[:, :5], g)
+        pose_capsules(c, transforms[:, :5])
 
 
 # --- CLI -------------------------------------------------------------------------------------

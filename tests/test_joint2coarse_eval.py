@@ -9,10 +9,9 @@ import shutil
 import numpy as np
 import pytest
 
-from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.colliders import body_capsules
+from core.body.shape import CHEST_LEVEL, BodyShape, mannequin_skeleton
 from core.motion.procedural import make_motion
-from core.sim.colliders import body_capsules
-from core.sim.simulate import CHEST_LEVEL
 from training.joint2coarse import push_out_of_capsules
 from training.joint2coarse.collision import penetration_summary, simulation_colliders
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.body.colliders import capsule_distance
+from core.body.colliders import body_capsules, capsule_distance, pose_capsules
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.errors import InputError
-from core.sim.colliders import body_capsules, pose_capsules
+from core.mesh import unique_edges
 from core.sim.config import FABRICS, SimConfig
 from core.sim.drive import body_drive
 from core.sim.pins import boundary_loops, find_pins
-from core.sim.simulate import edge_strain, unique_edges
+from core.sim.simulate import edge_strain
 from core.skeleton import forward_kinematics, skinning_transforms
 from tests.conftest import assert_close
 from tests.sim_helpers import frustum_skirt, spin_motion

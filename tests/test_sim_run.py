@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from core.body.shape import BodyShape
+from core.mesh import unique_edges
 from core.motion.motion import Motion
 from core.sim.cache import load_cache
 from core.sim.config import SimConfig
-from core.sim.simulate import SimulationError, edge_strain, simulate, unique_edges
+from core.sim.simulate import SimulationError, edge_strain, simulate
 from core.skeleton import rotation_about
 from tests.sim_helpers import frustum_skirt, spin_motion
 

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import InputError
+from core.mesh import unique_edges  # noqa: F401  (re-exported for the GUI controller)
 
 #: Key of the window's settings inside ``project.json``.
 SETTINGS_KEY = "gui"
@@ -452,14 +453,6 @@ def proxy_summary(report: dict) -> list[tuple[str, str]]:
         ("charts", f"{uv['charts']}, {uv['utilization']:.0%} used"),
         ("time", f"{sum(report['timings_s'].values()):.2f} s"),
     ]
-
-
-def unique_edges(faces: np.ndarray) -> np.ndarray:
-    """Undirected edges of triangles: (E, 2) int64, each once (for wireframes)."""
-    f = np.asarray(faces, np.int64)
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e.sort(axis=1)
-    return np.unique(e, axis=0)
 
 
 # -------------------------------------------------------------------------------------- images

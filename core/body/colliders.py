@@ -1,11 +1,20 @@
-"""Collision capsules for the cloth simulator, fitted just inside the mannequin's skin.
+"""The body as the cloth solver sees it: rigid capsules carried by the mannequin's bones.
 
-Each capsule follows one bone: its rest endpoints are rigidly attached to the bone's joint,
-so posing is ``p_j + R_j (x - rest_j)``, the same rigid transform linear blend skinning gives
-a vertex weighted fully to that joint. The torso is a stack of left-right capsules (an
-ellipse is well covered by stadium shapes), limbs are chains of capsules along the bones
-(split where they taper). Radii are fitted to the mesh: the largest radius that keeps the
-capsule ``margin`` inside the surface.
+One collider for the whole project: the simulation collides with it, Joint2Coarse pushes its
+predictions out of it and is measured against it, and :class:`core.body.mannequin.Body`
+carries it (``Body.capsules``).
+
+Why capsules and not the skinned body mesh: a capsule is an exact, smooth signed-distance
+shape, cheap to test a particle against (one segment distance), and it moves rigidly with one
+bone, so the solver gets exact poses and velocities every substep. A skinned mesh collider
+would need its BVH refitted every substep and gives faceted normals; on CPU that costs more
+than the whole cloth solve of a 2k proxy.
+
+The torso is a stack of horizontal capsules (stadium cross-sections) whose widths and depths
+follow the mannequin's torso key sections (:func:`core.body.shape.torso_keys`, the same
+ellipses the mannequin mesh is built from, before its girth fit); limbs are capsules along
+their bones; the head a sphere. Posing a capsule is the rigid transform linear blend skinning
+gives a vertex weighted fully to the capsule's joint.
 """
 
 from __future__ import annotations
@@ -14,244 +23,193 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.body.shape import BodyShape
+from core.body.shape import CHEST_LEVEL, BodyShape, mannequin_skeleton, torso_keys
+from core.body.skinning import motion_arrays
 from core.errors import InputError
-from core.skeleton import Skeleton
+from core.skeleton import Skeleton, forward_kinematics, skinning_transforms
 
-#: Gap between a capsule and the skin, as a fraction of the height (3.4 mm at 1.70 m).
-MARGIN_FRACTION = 0.002
-#: Horizontal torso capsules between the crotch and the shoulders.
-TORSO_CAPSULES = 10
-_SAMPLES = 24  # points along a capsule's axis when fitting its radius
+#: Torso capsules are laid every this fraction of the height (dips between them ~3 mm).
+_TORSO_STEP = 0.02
 
 
 @dataclass(frozen=True)
-class Capsules:
-    """Capsules attached to a skeleton's joints.
+class BodyCapsules:
+    """Collision capsules of a body in its rest pose.
 
     Attributes
     ----------
     names : tuple of K str
-    joints : (K, 2) int64
-        The bone each capsule follows, as (joint, child joint) indices; the first joint's
-        transform carries it. For a bone that ends in an end site the child is the joint itself.
+        What each capsule is (``"torso-0.50"``, ``"LeftUpLeg"``...), for reports.
+    joints : (K,) int64
+        Index of the skeleton joint whose frame carries each capsule rigidly.
     endpoints : (K, 2, 3) float32
-        Rest-pose endpoints, metres.
+        Rest-pose (world) end points of each capsule's segment, metres.
     radii : (K,) float32
-    rest_joints : (J, 3) float32
-        Rest positions of the skeleton's joints (what posing subtracts).
+        Capsule radii, metres.
     """
 
     names: tuple[str, ...]
     joints: np.ndarray
     endpoints: np.ndarray
     radii: np.ndarray
-    rest_joints: np.ndarray
-
-    def __post_init__(self) -> None:
-        k = len(self.names)
-        if self.joints.shape != (k, 2) or self.endpoints.shape != (k, 2, 3):
-            raise ValueError(f"capsule arrays disagree with {k} names")
-        if self.radii.shape != (k,) or (self.radii <= 0).any():
-            raise ValueError("capsule radii must be (K,) and positive")
 
     @property
-    def num_capsules(self) -> int:
+    def count(self) -> int:
         return len(self.names)
 
 
-def fit_capsules(
-    vertices: np.ndarray, faces: np.ndarray, skeleton: Skeleton, shape: BodyShape
-) -> Capsules:
-    """Capsules for a mannequin mesh, each as thick as fits ``MARGIN_FRACTION`` inside it.
-
-    Parameters
-    ----------
-    vertices : (V, 3) float
-    faces : (F, 3) int
-        Closed, outward-oriented rest mesh.
-    skeleton : Skeleton
-        ``mannequin_skeleton(shape)``.
-    shape : BodyShape
-    """
-    from core.body.mannequin import torso_range, torso_sections
-
-    h = shape.height
-    pos = skeleton.rest_positions().astype(np.float64)
-    end = skeleton.end_sites.astype(np.float64)
+def body_capsules(skeleton: Skeleton, shape: BodyShape) -> BodyCapsules:
+    """Capsules for the mannequin ``skeleton`` built from ``shape`` (A-pose rest)."""
+    h, t = shape.height, shape.thickness
+    p = skeleton.rest_positions().astype(np.float64)
     ix = skeleton.index
+    ys, key_a, key_b, key_z = torso_keys(shape)
+
     names: list[str] = []
-    joints: list[tuple[int, int]] = []
-    segs: list[np.ndarray] = []
+    joints: list[int] = []
+    ends: list[np.ndarray] = []
+    radii: list[float] = []
 
-    def add(name: str, joint: str, child: str | None, a, b) -> None:
+    def add(name: str, joint: str, a: np.ndarray, b: np.ndarray, r: float) -> None:
         names.append(name)
-        joints.append((ix(joint), ix(child) if child else ix(joint)))
-        segs.append(np.array([a, b], np.float64))
+        joints.append(ix(joint))
+        ends.append(np.stack([a, b]))
+        radii.append(r)
 
-    # Torso: left-right capsules stacked from just above the crotch to below the shoulders.
-    # Per level, the length that gives the fattest stadium (4 L r + pi r^2) inside the skin.
-    y0, y1 = torso_range(shape)
-    ys = np.linspace(y0 + 0.025 * h, y1 - 0.04 * h, TORSO_CAPSULES)
-    a, b, zc = torso_sections(shape, ys)
-    fractions = np.array([0.2, 0.45, 0.7, 0.95])
-    cand = []
-    for ai, bi, y, zi in zip(a, b, ys, zc):
-        for fr in fractions:
-            half = fr * max(ai - 0.5 * min(ai, bi), 1e-4)
-            cand.append(((-half, y, zi), (half, y, zi)))
-    cand_segs, cand_r, cand_ok = _fit_radii(
-        vertices, faces, np.asarray(cand, np.float64), MARGIN_FRACTION * h
-    )
-    cand_segs = cand_segs.reshape(len(ys), len(fractions), 2, 3)
-    half_len = np.linalg.norm(cand_segs[:, :, 1] - cand_segs[:, :, 0], axis=2) / 2
-    r = cand_r.reshape(len(ys), len(fractions))
-    area = np.where(cand_ok.reshape(r.shape), 4 * half_len * r + np.pi * r**2, -1.0)
-    best = area.argmax(axis=1)
-    spine = ["Hips", "Spine", "Spine1", "Spine2"]
-    spine_y = [pos[ix(n), 1] for n in spine[1:]]
-    for i, y in enumerate(ys):
-        k = int(np.searchsorted(spine_y, y))
-        child = spine[k + 1] if k + 1 < len(spine) else "Neck"
-        seg = cand_segs[i, best[i]]
-        add(f"Torso{i}", spine[k], child, seg[0], seg[1])
-    add("Neck", "Neck", "Head", pos[ix("Neck")], pos[ix("Head")])
-    head = pos[ix("Head")] + end[ix("Head")] * np.array([[0.35], [0.65]])
-    add("Head", "Head", None, head[0], head[1])
+    for frac in np.arange(0.455, 0.80, _TORSO_STEP):
+        y = frac * h
+        a, b, z = (float(np.interp(y, ys, k)) for k in (key_a, key_b, key_z))
+        c = max(a - b, 0.0)
+        # A point between joints p and its child moves with p's frame (the bone p -> child).
+        joint = "Hips"
+        for name in ("Spine", "Spine1", "Spine2"):
+            if y >= p[ix(name), 1]:
+                joint = name
+        add(f"torso-{frac:.3f}", joint, np.array([-c, y, z]), np.array([c, y, z]), b)
+
+    def r(x: float) -> float:
+        return x * h * t
+
+    add("Neck", "Neck", p[ix("Neck")], p[ix("Head")], r(0.030))
+    head_c = p[ix("Head")] + 0.5 * skeleton.end_sites[ix("Head")] + np.array([0, 0, 0.012 * h])
+    add("Head", "Head", head_c, head_c, 0.052 * h)
     for side in ("Left", "Right"):
-        s, a_, fa, hd = (pos[ix(f"{side}{n}")] for n in ("Shoulder", "Arm", "ForeArm", "Hand"))
-        add(f"{side}Shoulder", f"{side}Shoulder", f"{side}Arm", s, a_)
-        for k, (p, q) in enumerate(_split(a_, fa, 2)):
-            add(f"{side}UpperArm{k}", f"{side}Arm", f"{side}ForeArm", p, q)
-        for k, (p, q) in enumerate(_split(fa, hd, 2)):
-            add(f"{side}ForeArm{k}", f"{side}ForeArm", f"{side}Hand", p, q)
-        add(f"{side}Hand", f"{side}Hand", None, hd, hd + 0.8 * end[ix(f"{side}Hand")])
-        up, kn, ft = (pos[ix(f"{side}{n}")] for n in ("UpLeg", "Leg", "Foot"))
-        for k, (p, q) in enumerate(_split(up, kn, 4)):
-            add(f"{side}Thigh{k}", f"{side}UpLeg", f"{side}Leg", p, q)
-        for k, (p, q) in enumerate(_split(kn, ft, 2)):
-            add(f"{side}Shin{k}", f"{side}Leg", f"{side}Foot", p, q)
-        toe = ft + end[ix(f"{side}Foot")]
-        heel = np.array([ft[0], 0.5 * ft[1], ft[2] - 0.02 * h])
-        tip = np.array([toe[0], 0.4 * ft[1], toe[2] - 0.035 * h])
-        add(f"{side}Foot", f"{side}Foot", None, heel, tip)
-    margin = MARGIN_FRACTION * h
-    segs_arr, radii, keep = _fit_radii(vertices, faces, np.stack(segs), margin)
-    return Capsules(
-        names=tuple(n for n, k in zip(names, keep) if k),
-        joints=np.asarray(joints, np.int64)[keep],
-        endpoints=segs_arr[keep].astype(np.float32),
-        radii=radii[keep].astype(np.float32),
-        rest_joints=pos.astype(np.float32),
+        arm, fore, hand = (p[ix(f"{side}{j}")] for j in ("Arm", "ForeArm", "Hand"))
+        add(f"{side}Arm", f"{side}Arm", arm, fore, r(0.024))
+        add(f"{side}ForeArm", f"{side}ForeArm", fore, hand, r(0.017))
+        up, knee, foot = (p[ix(f"{side}{j}")] for j in ("UpLeg", "Leg", "Foot"))
+        thigh = min(r(0.050), 0.9 * abs(up[0]))
+        knee_r = min(r(0.030), thigh)
+        mid = up + 0.45 * (knee - up)
+        add(f"{side}UpLeg", f"{side}UpLeg", up, mid, thigh)
+        add(f"{side}UpLeg-low", f"{side}UpLeg", mid, knee, 0.5 * (thigh + knee_r))
+        add(f"{side}Leg", f"{side}Leg", knee, foot, min(r(0.032), thigh))
+    return BodyCapsules(
+        names=tuple(names),
+        joints=np.array(joints, np.int64),
+        endpoints=np.array(ends, np.float32),
+        radii=np.array(radii, np.float32),
     )
 
 
-def _split(a: np.ndarray, b: np.ndarray, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    t = np.linspace(0, 1, n + 1)
-    return [(a + t[i] * (b - a), a + t[i + 1] * (b - a)) for i in range(n)]
+def select_capsules(capsules: BodyCapsules, keep: np.ndarray) -> BodyCapsules:
+    """The capsules where ``keep`` (K,) bool is true."""
+    keep = np.asarray(keep, bool)
+    return BodyCapsules(
+        names=tuple(n for n, k in zip(capsules.names, keep) if k),
+        joints=capsules.joints[keep],
+        endpoints=capsules.endpoints[keep],
+        radii=capsules.radii[keep],
+    )
 
 
-def _fit_radii(vertices, faces, segs: np.ndarray, margin: float):
-    """Largest radius per segment that stays ``margin`` inside; segments poking out of the
-    mesh are shortened towards their middle (and dropped if nothing fits).
-
-    Returns (segments (K, 2, 3), radii (K,), keep (K,) bool).
-    """
-    import igl
-
-    v = np.ascontiguousarray(vertices, np.float64)
-    f = np.ascontiguousarray(faces, np.int64)
-    tree = igl.AABB()
-    tree.init(v, f)
-    segs = segs.copy()
-    radii = np.zeros(len(segs))
-    keep = np.zeros(len(segs), bool)
-    t = np.linspace(0, 1, _SAMPLES)
-    todo = np.arange(len(segs))
-    for _ in range(6):
-        pts = segs[todo, :1] + t[None, :, None] * (segs[todo, 1:] - segs[todo, :1])
-        q = np.ascontiguousarray(pts.reshape(-1, 3))
-        dist = np.sqrt(tree.squared_distance(v, f, q)[0])
-        inside = igl.fast_winding_number(v, f, q) > 0.5
-        sd = np.where(inside, -dist, dist).reshape(len(todo), _SAMPLES)
-        r = (-sd).min(axis=1) - margin
-        ok = (sd < 0).all(axis=1) & (r > margin)
-        radii[todo[ok]] = r[ok]
-        keep[todo[ok]] = True
-        todo = todo[~ok]
-        if len(todo) == 0:
-            break
-        mid = segs[todo].mean(axis=1, keepdims=True)
-        segs[todo] = mid + 0.6 * (segs[todo] - mid)
-    return segs, radii, keep
+def is_arm(name: str) -> bool:
+    """Whether a capsule name belongs to an arm (upper arm or forearm)."""
+    return "Arm" in name
 
 
-def pose_capsules(
-    capsules: Capsules, positions: np.ndarray, global_rotations: np.ndarray
-) -> np.ndarray:
-    """Posed capsule endpoints.
+def arms_collide(shape: BodyShape, garment_top: float, arm_colliders: bool | None) -> bool:
+    """Whether the arms collide: as asked (``arm_colliders``), or when that is None, when the
+    garment reaches above the chest (``garment_top``, its highest rest-pose height, metres)."""
+    if arm_colliders is not None:
+        return bool(arm_colliders)
+    return garment_top > CHEST_LEVEL * shape.height
+
+
+def garment_capsules(
+    skeleton: Skeleton, shape: BodyShape, garment_top: float, arm_colliders: bool | None
+) -> BodyCapsules:
+    """The capsules a garment collides with: :func:`body_capsules`, without the arms unless
+    :func:`arms_collide` says so."""
+    capsules = body_capsules(skeleton, shape)
+    if arms_collide(shape, garment_top, arm_colliders):
+        return capsules
+    return select_capsules(capsules, [not is_arm(n) for n in capsules.names])
+
+
+def pose_capsules(capsules: BodyCapsules, transforms: np.ndarray) -> np.ndarray:
+    """Posed capsule end points.
 
     Parameters
     ----------
-    capsules : Capsules
-    positions : (T, J, 3) float
-    global_rotations : (T, J, 3, 3) float
-        Joint world positions and orientations, from :func:`core.skeleton.forward_kinematics`.
+    capsules : BodyCapsules
+    transforms : (S, J, 4, 4) float
+        Skinning transforms (:func:`core.skeleton.skinning_transforms`).
 
     Returns
     -------
-    (T, K, 2, 3) float32
+    (S, K, 2, 3) float32
         Radii do not change with the pose.
     """
-    p = np.asarray(positions, np.float64)
-    r = np.asarray(global_rotations, np.float64)
-    j = len(capsules.rest_joints)
-    if p.ndim != 3 or p.shape[1:] != (j, 3) or r.shape != p.shape + (3,):
-        raise InputError(
-            f"positions must be (T, {j}, 3) and rotations (T, {j}, 3, 3); "
-            f"got {p.shape} and {r.shape}"
-        )
-    carrier = capsules.joints[:, 0]
-    local = capsules.endpoints.astype(np.float64) - capsules.rest_joints[carrier][:, None, :]
-    out = p[:, carrier, None, :] + np.einsum("tkab,knb->tkna", r[:, carrier], local)
-    return out.astype(np.float32)
-
-
-def transform_capsules(capsules: Capsules, transforms: np.ndarray) -> np.ndarray:
-    """Posed capsule endpoints from skinning transforms (what LBS applies to the skin).
-
-    Parameters
-    ----------
-    capsules : Capsules
-    transforms : (T, J, 4, 4) float
-        From :func:`core.skeleton.skinning_transforms`.
-
-    Returns
-    -------
-    (T, K, 2, 3) float32
-        The same as :func:`pose_capsules` on the FK that made ``transforms``.
-    """
     m = np.asarray(transforms, np.float64)
-    j = len(capsules.rest_joints)
-    if m.ndim != 4 or m.shape[1:] != (j, 4, 4):
-        raise InputError(f"transforms must be (T, {j}, 4, 4), got {m.shape}")
-    mk = m[:, capsules.joints[:, 0]]  # (T, K, 4, 4)
+    if m.ndim != 4 or m.shape[2:] != (4, 4) or m.shape[1] <= capsules.joints.max(initial=-1):
+        raise InputError(f"transforms must be (S, J, 4, 4) for this skeleton, got {m.shape}")
+    m = m[:, capsules.joints]  # (S, K, 4, 4)
     e = capsules.endpoints.astype(np.float64)
-    out = np.einsum("tkab,knb->tkna", mk[..., :3, :3], e) + mk[:, :, None, :3, 3]
+    out = np.einsum("skab,kcb->skca", m[..., :3, :3], e) + m[:, :, None, :3, 3]
     return out.astype(np.float32)
 
 
 def posed_capsules_for(body, motion) -> np.ndarray:
-    """Capsule endpoints of ``body`` for every frame of ``motion``: (T, K, 2, 3) float32.
+    """Capsule end points of ``body`` for every frame of ``motion``: (T, K, 2, 3) float32.
 
-    ``motion`` is what :func:`core.body.skinning.pose_body` takes.
+    ``body`` is a :class:`core.body.mannequin.Body`; ``motion`` is what
+    :func:`core.body.skinning.motion_arrays` takes.
     """
-    from core.body.skinning import _motion_arrays
-    from core.skeleton import forward_kinematics
-
-    rotations, root = _motion_arrays(body.skeleton, motion)
+    rotations, root = motion_arrays(body.skeleton, motion)
     pos, rot = forward_kinematics(body.skeleton, rotations, root)
-    return pose_capsules(body.capsules, pos, rot)
+    return pose_capsules(body.capsules, skinning_transforms(body.skeleton, pos, rot))
+
+
+def posed_garment_capsules(
+    shape: BodyShape,
+    rotations: np.ndarray,
+    root_positions: np.ndarray,
+    garment_top: float,
+    arm_colliders: bool | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The capsules a garment collides with (:func:`garment_capsules`), posed per frame.
+
+    Parameters
+    ----------
+    shape : BodyShape
+    rotations : (T, J, 3, 3) float
+    root_positions : (T, 3) float
+        A motion on the mannequin's joints.
+    garment_top : float
+        Highest rest-pose height of the garment, metres.
+    arm_colliders : bool or None
+        :attr:`core.sim.SimConfig.arm_colliders`.
+
+    Returns
+    -------
+    ends : (T, K, 2, 3) float32
+    radii : (K,) float32
+    """
+    skeleton = mannequin_skeleton(shape)
+    capsules = garment_capsules(skeleton, shape, garment_top, arm_colliders)
+    pos, rot = forward_kinematics(skeleton, rotations, root_positions)
+    return pose_capsules(capsules, skinning_transforms(skeleton, pos, rot)), capsules.radii
 
 
 def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarray) -> np.ndarray:
@@ -277,3 +235,24 @@ def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarra
         d = np.linalg.norm(q - t[..., None] * ab[None], axis=2) - np.asarray(radii)[None]
         out[i0 : i0 + 4096] = d.min(axis=1)
     return out.astype(np.float32)
+
+
+def penetration_depths(
+    positions: np.ndarray, capsule_ends: np.ndarray, radii: np.ndarray
+) -> np.ndarray:
+    """Depth (metres, >= 0) of each vertex inside the capsules, per frame.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float
+    capsule_ends : (T, K, 2, 3) float, posed capsules at the same frames
+    radii : (K,) float
+
+    Returns
+    -------
+    (T, N) float32
+    """
+    out = np.empty(positions.shape[:2], np.float32)
+    for t in range(len(positions)):
+        out[t] = np.maximum(-capsule_distance(positions[t], capsule_ends[t], radii), 0.0)
+    return out

@@ -26,28 +26,26 @@ tall body put the arms into the torso).
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.colliders import BodyCapsules, body_capsules
+from core.body.shape import (
+    CHEST_LEVEL,
+    HIP_LEVEL,
+    TORSO_BOTTOM,
+    TORSO_TOP,
+    WAIST_LEVEL,
+    BodyShape,
+    mannequin_skeleton,
+    torso_keys,
+)
+from core.body.skinning import skinning_weights
 from core.errors import InputError
+from core.mesh import Mesh
 from core.skeleton import Skeleton
 
-if TYPE_CHECKING:
-    from core.body.colliders import Capsules
-
-#: Heights (fractions of the standing height) where the girths are measured.
-HIP_LEVEL = 0.500
-WAIST_LEVEL = 0.630
-CHEST_LEVEL = 0.720
-#: Bottom (crotch) and top (shoulder) of the torso, fractions of the height.
-_TORSO_BOTTOM = 0.440
-_TORSO_TOP = 0.838
-#: Width / depth of the torso ellipse at the hip, waist and chest.
-_ASPECT = {"hip": 1.45, "waist": 1.38, "chest": 1.32}
 #: Default and allowed target vertex counts.
 DEFAULT_RESOLUTION = 9000
 RESOLUTION_LIMITS = (2000, 40000)
@@ -71,8 +69,9 @@ class Body:
         Counter-clockwise triangles, normals outwards; closed and manifold.
     weights : (V, J) float32
         Linear-blend skinning weights: non-negative, rows sum to 1, at most 4 non-zeros per row.
-    capsules : core.body.colliders.Capsules
-        Collision capsules sitting just inside the surface.
+    capsules : core.body.colliders.BodyCapsules
+        The collision capsules the cloth simulation uses for this shape
+        (:func:`core.body.colliders.body_capsules`).
     levels : dict of str -> float
         Heights (metres) of the ``"hip"``, ``"waist"`` and ``"chest"`` girth measurements.
 
@@ -84,7 +83,7 @@ class Body:
     vertices: np.ndarray
     faces: np.ndarray
     weights: np.ndarray
-    capsules: Capsules
+    capsules: BodyCapsules
     levels: dict
 
     @property
@@ -94,8 +93,6 @@ class Body:
     @property
     def mesh(self):
         """The rest mesh as a :class:`core.mesh.Mesh`."""
-        from core.mesh import Mesh
-
         return Mesh(self.vertices, self.faces)
 
     def girth(self, level: str) -> float:
@@ -132,13 +129,10 @@ def make_body(shape: BodyShape | None = None, resolution: int = DEFAULT_RESOLUTI
 
 @functools.lru_cache(maxsize=16)
 def _make_body_cached(shape: BodyShape, resolution: int) -> Body:
-    from core.body.colliders import fit_capsules
-    from core.body.skinning import skinning_weights
-
     skeleton = mannequin_skeleton(shape)
     vertices, faces = body_mesh(shape, resolution)
     weights = skinning_weights(vertices, faces, skeleton)
-    capsules = fit_capsules(vertices, faces, skeleton, shape)
+    capsules = body_capsules(skeleton, shape)
     for a in (vertices, faces, weights):
         a.setflags(write=False)
     h = shape.height
@@ -149,12 +143,6 @@ def _make_body_cached(shape: BodyShape, resolution: int) -> Body:
 # --------------------------------------------------------------------------------------------
 # The implicit body
 # --------------------------------------------------------------------------------------------
-
-
-def _ellipse_perimeter(a: float, b: float) -> float:
-    """Ramanujan's second approximation of the perimeter of an ellipse with semi-axes a, b."""
-    h = ((a - b) / (a + b)) ** 2
-    return math.pi * (a + b) * (1 + 3 * h / (10 + math.sqrt(4 - 3 * h)))
 
 
 @dataclass(frozen=True)
@@ -205,37 +193,15 @@ class _TorsoProfile:
 def _torso_profile(shape: BodyShape, scale: dict[str, float]) -> _TorsoProfile:
     """Torso key sections; ``scale`` multiplies the hip/waist/chest girths (the fit's knobs)."""
     h = shape.height
-    keys = {}
-    for name, girth in (("hip", shape.hip), ("waist", shape.waist), ("chest", shape.chest)):
-        r = _ASPECT[name]
-        a = girth * scale[name] / _ellipse_perimeter(1.0, 1.0 / r)
-        keys[name] = (a, a / r)
-    ah, bh = keys["hip"]
-    aw, bw = keys["waist"]
-    ac, bc = keys["chest"]
-    sw = shape.shoulder_width
-    ys = np.array([_TORSO_BOTTOM, HIP_LEVEL, WAIST_LEVEL, CHEST_LEVEL, 0.772, 0.805, _TORSO_TOP])
-    a = np.array(
-        [
-            0.93 * ah,
-            ah,
-            aw,
-            ac,
-            max(0.97 * ac, 0.42 * sw),
-            max(0.80 * ac, 0.40 * sw),
-            max(0.62 * ac, 0.34 * sw),
-        ]
-    )
-    b = np.array([0.90 * bh, bh, bw, bc, 0.92 * bc, 0.72 * bc, 0.55 * bc])
-    zc = np.array([-0.004, 0.0, 0.004, 0.012, 0.0, -0.012, -0.014]) * h
+    ys, a, b, zc = torso_keys(shape, scale)
     b_bottom, b_top = b[0], b[-1]
     return _TorsoProfile(
-        y=ys * h,
+        y=ys,
         a=a,
         b=b,
         zc=zc,
-        y0=_TORSO_BOTTOM * h,
-        y1=_TORSO_TOP * h,
+        y0=TORSO_BOTTOM * h,
+        y1=TORSO_TOP * h,
         round_bottom=0.6 * min(b_bottom, a[0]),
         round_top=0.8 * min(b_top, a[-1]),
     )
@@ -388,26 +354,9 @@ def _field_at(prims, x, y, z):
     return f
 
 
-def torso_sections(shape: BodyShape, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The girth-fitted torso ellipse at heights ``y`` (metres), before blending with limbs.
-
-    Parameters
-    ----------
-    y : (N,) float
-
-    Returns
-    -------
-    half_width, half_depth, z_centre : (N,) float64 each
-        Outside the torso's height range the end sections are returned.
-    """
-    base, _ = _fitted_primitives(shape, _min_radius(shape, DEFAULT_RESOLUTION))
-    (torso,) = base[0].params
-    return torso.sections(np.asarray(y, np.float64))
-
-
 def torso_range(shape: BodyShape) -> tuple[float, float]:
     """Bottom (crotch) and top (shoulders) heights of the torso, metres."""
-    return _TORSO_BOTTOM * shape.height, _TORSO_TOP * shape.height
+    return TORSO_BOTTOM * shape.height, TORSO_TOP * shape.height
 
 
 def _min_radius(shape: BodyShape, resolution: int) -> float:

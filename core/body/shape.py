@@ -136,3 +136,64 @@ def mannequin_skeleton(shape: BodyShape = BodyShape()) -> Skeleton:
         end_sites[names.index(f"{side}Hand")] = hand * np.array([sx * np.cos(arm), -np.sin(arm), 0])
         end_sites[names.index(f"{side}Foot")] = (0.0, -y["LeftFoot"], 0.145 * h)
     return Skeleton(names=names, parents=parents, offsets=offsets, end_sites=end_sites)
+
+
+# --------------------------------------------------------------------------------------------
+# The torso's key sections: one definition for the mannequin mesh and its colliders.
+
+#: Heights (fractions of the standing height) where the girths are measured.
+HIP_LEVEL = 0.500
+WAIST_LEVEL = 0.630
+CHEST_LEVEL = 0.720
+#: Bottom (crotch) and top (shoulder) of the torso, fractions of the height.
+TORSO_BOTTOM = 0.440
+TORSO_TOP = 0.838
+#: Width / depth of the torso ellipse at the hip, waist and chest.
+TORSO_ASPECT = {"hip": 1.45, "waist": 1.38, "chest": 1.32}
+#: Heights of the torso's key sections, fractions of the height (bottom to top).
+TORSO_KEY_LEVELS = (TORSO_BOTTOM, HIP_LEVEL, WAIST_LEVEL, CHEST_LEVEL, 0.772, 0.805, TORSO_TOP)
+
+
+def ellipse_perimeter(a: float, b: float) -> float:
+    """Ramanujan's second approximation of the perimeter of an ellipse with semi-axes a, b."""
+    h = ((a - b) / (a + b)) ** 2
+    return math.pi * (a + b) * (1 + 3 * h / (10 + math.sqrt(4 - 3 * h)))
+
+
+def torso_keys(
+    shape: BodyShape, scale: dict[str, float] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The torso's elliptic key sections, from the girths and the shoulder width.
+
+    At the hip, waist and chest the ellipse has the girth (times ``scale[name]``, the
+    mannequin's fitting knob; 1 when None) and the aspect ``TORSO_ASPECT``; the sections
+    below and above follow from them.
+
+    Returns
+    -------
+    y, half_width, half_depth, z_centre : (7,) float64 each
+        At the heights ``TORSO_KEY_LEVELS`` (metres).
+    """
+    h = shape.height
+    keys = {}
+    for name, girth in (("hip", shape.hip), ("waist", shape.waist), ("chest", shape.chest)):
+        r = TORSO_ASPECT[name]
+        k = 1.0 if scale is None else scale[name]
+        a = girth * k / ellipse_perimeter(1.0, 1.0 / r)
+        keys[name] = (a, a / r)
+    (ah, bh), (aw, bw), (ac, bc) = keys["hip"], keys["waist"], keys["chest"]
+    sw = shape.shoulder_width
+    a = np.array(
+        [
+            0.93 * ah,
+            ah,
+            aw,
+            ac,
+            max(0.97 * ac, 0.42 * sw),
+            max(0.80 * ac, 0.40 * sw),
+            max(0.62 * ac, 0.34 * sw),
+        ]
+    )
+    b = np.array([0.90 * bh, bh, bw, bc, 0.92 * bc, 0.72 * bc, 0.55 * bc])
+    zc = np.array([-0.004, 0.0, 0.004, 0.012, 0.0, -0.012, -0.014]) * h
+    return np.array(TORSO_KEY_LEVELS) * h, a, b, zc

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.errors import InputError
+from core.motion.motion import Motion
 from core.skeleton import Skeleton, forward_kinematics, skinning_transforms
 
 #: Most joints that influence a vertex.
@@ -339,15 +340,32 @@ def pose_body(body, motion) -> np.ndarray:
     (T, V, 3) float32
         Identity rotations with the rest root position give the rest vertices exactly.
     """
-    rotations, root = _motion_arrays(body.skeleton, motion)
+    rotations, root = motion_arrays(body.skeleton, motion)
     pos, rot = forward_kinematics(body.skeleton, rotations, root)
     transforms = skinning_transforms(body.skeleton, pos, rot)
     return linear_blend_skinning(body.vertices, body.weights, transforms)
 
 
-def _motion_arrays(skeleton: Skeleton, motion) -> tuple[np.ndarray, np.ndarray]:
-    from core.motion.motion import Motion
+def motion_arrays(skeleton: Skeleton, motion) -> tuple[np.ndarray, np.ndarray]:
+    """A motion's local rotations and root positions, checked against ``skeleton``.
 
+    Parameters
+    ----------
+    skeleton : Skeleton
+        The body's skeleton (the mannequin's joints).
+    motion : core.motion.motion.Motion, or a pair ``(rotations, root_positions)``
+        A Motion must be on ``skeleton``'s joints (same names and order).
+
+    Returns
+    -------
+    rotations : (T, J, 3, 3) float64
+    root_positions : (T, 3) float64
+
+    Raises
+    ------
+    InputError
+        Other joints, wrong shapes, NaN or infinite values.
+    """
     if isinstance(motion, Motion):
         if tuple(motion.skeleton.names) != tuple(skeleton.names):
             raise InputError(

@@ -47,7 +47,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from core.errors import InputError
-from core.sim.simulate import unique_edges
+from core.mesh import unique_edges, vertex_normals
+from core.proxy.metrics import correspond
 
 #: Diffusion length (metres) of the target's binding along its own edges.
 SMOOTHING_M = 0.15
@@ -123,17 +124,6 @@ def strain_stats(positions: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> 
     )
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals: (V, 3) float64 for vertices (V, 3), faces (F, 3)."""
-    v = np.asarray(vertices, np.float64)
-    tri = v[faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, faces[:, k], n)
-    return out / np.maximum(np.linalg.norm(out, axis=-1, keepdims=True), 1e-12)
-
-
 def vertex_deformations(
     rest: np.ndarray, current: np.ndarray, faces: np.ndarray, edges: np.ndarray
 ) -> np.ndarray:
@@ -203,8 +193,6 @@ def embed(
     ``target_faces`` (Ft, 3), when given, are the edges the binding is smoothed along (without
     them each vertex is bound to its closest proxy point alone).
     """
-    from core.proxy.metrics import correspond
-
     target = np.asarray(target, np.float64)
     proxy = np.asarray(proxy, np.float64)
     faces = np.asarray(faces, np.int64)

@@ -17,8 +17,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from core.errors import InputError
+from core.mesh import vertex_normals
+from core.proxy.metrics import barycentric, point_to_mesh
 from core.skeleton import Skeleton
 
 #: Bones a pinned vertex may follow: segments whose parent joint is one of these (the frame
@@ -149,9 +153,6 @@ def find_pins(
 
 def _pinned_components(num_vertices: int, faces: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """Connected-component label of each pinned vertex (edges between pinned vertices only)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     pinned = np.zeros(num_vertices, bool)
     pinned[idx] = True
     e = np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
@@ -202,8 +203,6 @@ class Seams:
     def targets(self, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
         """Positions of the sewn vertices for garment positions (V, 3) and the garment's
         faces: (A, 3) float32."""
-        from core.sim.embed import vertex_normals
-
         x = np.asarray(positions, np.float64)
         tri = x[self.hosts]
         w = self.barycentric.astype(np.float64)
@@ -225,9 +224,6 @@ def triangle_frames(tri: np.ndarray) -> np.ndarray:
 
 def _components(num_vertices: int, faces: np.ndarray) -> np.ndarray:
     """Connected-component label of every vertex (isolated vertices get their own)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     e = np.asarray(faces, np.int64)[:, [0, 1, 1, 2]].reshape(-1, 2)
     adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num_vertices,) * 2)
     return connected_components(adj, directed=False)[1]
@@ -254,9 +250,6 @@ def find_seams(
     pinned : (P,) int, indices of pinned vertices (:attr:`Pins.indices`)
     pin_distance : metres (see :class:`core.sim.config.SimConfig`)
     """
-    from core.proxy.metrics import barycentric, point_to_mesh
-    from core.sim.embed import vertex_normals
-
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     label = _components(len(v), f)

@@ -27,27 +27,25 @@ import contextlib
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from core.body.colliders import capsule_distance
+from core.body.colliders import (
+    arms_collide,
+    garment_capsules,
+    is_arm,
+    penetration_depths,
+    pose_capsules,
+)
 from core.body.shape import MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
 from core.errors import InputError
-from core.mesh import Mesh
+from core.mesh import Mesh, count_components, unique_edges
 from core.sim.cache import SimCache
-from core.sim.colliders import (
-    body_capsules,
-    is_arm,
-    pose_capsules,
-    select_capsules,
-)
 from core.sim.config import SimConfig
 from core.sim.drive import BodyDrive, body_drive
 from core.sim.pins import Seams, find_pins, find_seams
 
-#: Chest height as a fraction of the body height (where the mannequin's chest girth is).
-CHEST_LEVEL = 0.72
 #: Weight of a kinematic particle in Style3D's cloth-cloth contacts (its solver row is 0; a free
 #: particle's holds its stretch stiffness and mass / dt^2, orders of magnitude more): small
 #: enough to leave those contacts without force, but not 0.
@@ -176,12 +174,6 @@ class SimReport:
         return d
 
 
-def unique_edges(faces: np.ndarray) -> np.ndarray:
-    """Undirected edges of a triangle mesh: (E, 2) int64, sorted pairs, unique."""
-    e = np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    return np.unique(np.sort(e, axis=1), axis=0)
-
-
 def edge_strain(positions: np.ndarray, edges: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
     """Signed edge strain (l - l0) / l0: positive stretched, negative compressed.
 
@@ -189,27 +181,6 @@ def edge_strain(positions: np.ndarray, edges: np.ndarray, rest_lengths: np.ndarr
     """
     d = positions[..., edges[:, 1], :] - positions[..., edges[:, 0], :]
     return np.linalg.norm(d, axis=-1) / rest_lengths - 1.0
-
-
-def penetration_depths(
-    positions: np.ndarray, capsule_ends: np.ndarray, radii: np.ndarray
-) -> np.ndarray:
-    """Depth (metres, >= 0) of each vertex inside the body colliders, per frame.
-
-    Parameters
-    ----------
-    positions : (T, N, 3) float
-    capsule_ends : (T, K, 2, 3) float, posed capsules at the same frames
-    radii : (K,) float
-
-    Returns
-    -------
-    (T, N) float32
-    """
-    out = np.empty(positions.shape[:2], np.float32)
-    for t in range(len(positions)):
-        out[t] = np.maximum(-capsule_distance(positions[t], capsule_ends[t], radii), 0.0)
-    return out
 
 
 def mesh_penetration_depths(
@@ -667,13 +638,10 @@ def simulate(
     drive = body_drive(
         skeleton, rotations, roots, motion.fps, n, config.transition_s, config.settle_s
     )
-    capsules = body_capsules(skeleton, shape)
-    arms = config.arm_colliders
-    if arms is None:
-        arms = float(garment.vertices[:, 1].max()) > CHEST_LEVEL * shape.height
+    top = float(garment.vertices[:, 1].max())
+    capsules = garment_capsules(skeleton, shape, top, config.arm_colliders)
     notes: list[str] = []
-    if not arms:
-        capsules = select_capsules(capsules, [not is_arm(name) for name in capsules.names])
+    if not arms_collide(shape, top, config.arm_colliders):
         notes.append("arms do not collide with this garment (it stays below the chest)")
     pins = find_pins(
         garment.vertices, garment.faces, skeleton, config.pin_distance, shape.height, path
@@ -693,10 +661,6 @@ def simulate(
     if (rest_len <= 0).any():
         raise InputError("garment has zero-length edges", path)
     if config.self_collision is None:
-        from dataclasses import replace
-
-        from core.mesh import count_components
-
         layered = count_components(garment.num_vertices, garment.faces) > 1
         config = replace(config, self_collision=layered)
         notes.append(

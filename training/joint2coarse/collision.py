@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.body.shape import BodyShape, mannequin_skeleton
-from core.sim.colliders import body_capsules, is_arm, pose_capsules, select_capsules
-from core.sim.simulate import CHEST_LEVEL, mannequin_motion_arrays, penetration_depths
-from core.skeleton import forward_kinematics, skinning_transforms
+from core.body.colliders import penetration_depths, posed_garment_capsules
+from core.body.shape import BodyShape
+from core.sim.simulate import mannequin_motion_arrays
 
 #: Default distance (metres) kept between a pushed vertex and the capsule surface.
 DEFAULT_MARGIN_M = 0.002
@@ -100,9 +99,9 @@ def simulation_colliders(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The capsules the cloth simulation collides with, posed for every frame of ``motion``.
 
-    The same capsules as :func:`core.sim.simulate.simulate` builds (:mod:`core.sim.colliders`),
-    with the same rule for the arms: they collide only when asked to (``arm_colliders``) or,
-    when that is None, when the garment reaches above the chest.
+    The project's one body collider (:mod:`core.body.colliders`), with the simulation's rule
+    for the arms (:func:`core.body.colliders.arms_collide`): they collide only when asked to
+    (``arm_colliders``) or, when that is None, when the garment reaches above the chest.
 
     Parameters
     ----------
@@ -120,13 +119,7 @@ def simulation_colliders(
     radii : (K,) float32
     """
     rotations, roots = mannequin_motion_arrays(motion, shape)
-    skeleton = mannequin_skeleton(shape)
-    capsules = body_capsules(skeleton, shape)
-    arms = arm_colliders if arm_colliders is not None else garment_top > CHEST_LEVEL * shape.height
-    if not arms:
-        capsules = select_capsules(capsules, [not is_arm(n) for n in capsules.names])
-    pos, rot = forward_kinematics(skeleton, rotations, roots)
-    return pose_capsules(capsules, skinning_transforms(skeleton, pos, rot)), capsules.radii
+    return posed_garment_capsules(shape, rotations, roots, garment_top, arm_colliders)
 
 
 def penetration_summary(positions: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> dict:
