@@ -33,6 +33,7 @@ import numpy as np
 from core.body.shape import MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
 from core.errors import InputError
 from core.motion.motion import Motion
+from core.numeric import smoothstep
 from core.skeleton import CANONICAL_JOINTS, ROOT_JOINT, Skeleton, forward_kinematics
 
 #: Order of the joints in a source position array: the root, then the canonical 19.
@@ -47,12 +48,6 @@ DEFAULT_SHAPE = BodyShape()
 
 # --------------------------------------------------------------------------------------------
 # Small rotation helpers on stacks of vectors / matrices (float64).
-
-
-def smoothstep(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """C1 ramp: 0 below ``lo``, 1 above ``hi``, cubic in between. Same shape as ``x``."""
-    u = np.clip((np.asarray(x, np.float64) - lo) / (hi - lo), 0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
 
 
 def _norm(v: np.ndarray) -> np.ndarray:

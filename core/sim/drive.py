@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
+from core.numeric import smoothstep
 from core.skeleton import Skeleton, forward_kinematics, skinning_transforms
 
 
@@ -59,11 +60,6 @@ def _slerp(r0: np.ndarray, r1: np.ndarray, w: np.ndarray) -> np.ndarray:
     b = Rotation.from_matrix(r1.reshape(-1, 3, 3))
     rel = (a.inv() * b).as_rotvec() * np.broadcast_to(w, shape).reshape(-1, 1)
     return (a * Rotation.from_rotvec(rel)).as_matrix().reshape(shape + (3, 3))
-
-
-def smoothstep(u: np.ndarray) -> np.ndarray:
-    u = np.clip(u, 0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
 
 
 def body_drive(

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
+from core.numeric import smoothstep
 
 from .fit import BodyFit
 from .skirts import Stack, _tube, _waistband
@@ -19,7 +20,6 @@ from .surface import (
     max_folds,
     orient_away,
     ribbon_points,
-    smoothstep,
 )
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
+from core.numeric import smoothstep
 
 from .fit import BodyFit, RadialProfile
 from .surface import (
@@ -25,7 +26,6 @@ from .surface import (
     grid_part,
     grid_size,
     max_folds,
-    smoothstep,
     weld_columns,
 )
 

@@ -176,11 +176,6 @@ def max_folds(perimeter: float, resolution: float, samples_per_fold: float = 6.0
     return int(perimeter / (resolution * samples_per_fold))
 
 
-def smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3 - 2 * x)
-
-
 def ribbon_points(
     centre: np.ndarray, across: np.ndarray, widths: np.ndarray, n_across: int
 ) -> np.ndarray:

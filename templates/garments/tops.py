@@ -23,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
+from core.numeric import smoothstep
 
 from .fit import BodyFit
-from .surface import Folds, Part, cylinder_points, grid_faces, grid_size, max_folds, smoothstep
+from .surface import Folds, Part, cylinder_points, grid_faces, grid_size, max_folds
 
 #: Probe grid used to measure the surface before choosing its resolution.
 _PROBE_ROWS, _PROBE_COLS = 40, 1024
