@@ -85,10 +85,12 @@ def test_cli_simulate_writes_cache_report_and_refuses_garbage(tmp_path, skirt, c
         "simulate", "--garment", str(tmp_path / "skirt.obj"), "--motion", str(tmp_path / "spin.bvh"),
         "--substeps", "2", "--iterations", "4", "--transition", "0.2", "--json",
         "--out", str(tmp_path / "c.npz"), "--export", str(tmp_path / "c.pc2"),
+        "--preview", str(tmp_path / "p.png"),
     ]  # fmt: skip
     assert main(args) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["finite"] and report["frames"] == 4
+    assert (tmp_path / "p.png").stat().st_size > 0 and report["preview_frames"] == [0, 1, 2, 3]
     assert (tmp_path / "c.report.json").is_file()
     cache = load_cache(tmp_path / "c.npz")
     assert cache.positions.shape == (4, skirt.num_vertices, 3)

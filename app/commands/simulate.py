@@ -121,7 +121,6 @@ def _report_path(out: Path, what: str) -> Path:
 def run(args: argparse.Namespace) -> int:
     from core.body.shape import BodyShape
     from core.errors import InputError
-    from core.fileio import write_json
     from core.mesh import weld_mesh
     from core.sim.cache import export_cache, import_cache, save_cache, unweld_cache
     from core.sim.config import SimConfig
@@ -199,24 +198,32 @@ def run(args: argparse.Namespace) -> int:
     if args.body_check:
         data["body_mesh_penetration"] = _body_check(cache, motion, shape)
     if args.preview is not None:
-        from core.sim.preview import contact_sheet
+        from core.sim.preview import preview_sheet
 
         png = Path(args.preview) if args.preview else _report_path(out, ".preview.png")
         title = f"{args.garment} / {motion.name} / {config.fabric}"
         data["preview"] = str(png)
-        data["preview_frames"] = contact_sheet(png, cache, motion, shape, title=title)
+        data["preview_frames"] = preview_sheet(png, cache, motion, shape, title=title)
+    return _write_report(
+        args,
+        out,
+        data,
+        f"{out}: {report.frames} frames x {cache.num_vertices} vertices "
+        f"({welded.num_vertices} welded), "
+        f"{report.ms_per_frame:.0f} ms/frame on {report.device}, "
+        f"strain max {report.strain_max:.3f} (limit {report.strain_limit}), "
+        f"penetration mean {report.penetration_mean_mm:.3f} mm, "
+        f"retried frames {list(report.retried_frames)}",
+    )
+
+
+def _write_report(args: argparse.Namespace, out: Path, data: dict, summary: str) -> int:
+    """Write ``data`` beside the cache ``out`` (``.report.json``), then print it as JSON
+    (``--json``) or the one-line ``summary``; the command's exit code."""
+    from core.fileio import write_json
+
     write_json(_report_path(out, ".report.json"), data)
-    if args.json:
-        print(json.dumps(data, indent=2))
-    else:
-        print(
-            f"{out}: {report.frames} frames x {cache.num_vertices} vertices "
-            f"({welded.num_vertices} welded), "
-            f"{report.ms_per_frame:.0f} ms/frame on {report.device}, "
-            f"strain max {report.strain_max:.3f} (limit {report.strain_limit}), "
-            f"penetration mean {report.penetration_mean_mm:.3f} mm, "
-            f"retried frames {list(report.retried_frames)}"
-        )
+    print(json.dumps(data, indent=2) if args.json else summary)
     return 0
 
 
@@ -225,7 +232,6 @@ def _embed(args: argparse.Namespace, garment, out: Path) -> int:
     import numpy as np
 
     from core.errors import InputError
-    from core.fileio import write_json
     from core.mesh import load_mesh, weld_mesh
     from core.sim.cache import SimCache, load_cache, save_cache
     from core.sim.embed import drive, embed, strain_stats
@@ -253,17 +259,15 @@ def _embed(args: argparse.Namespace, garment, out: Path) -> int:
         "proxy_cache": str(cache_file), "frames": len(moved), "vertices": garment.num_vertices,
         **stats.as_dict(),
     }  # fmt: skip
-    write_json(_report_path(out, ".report.json"), data)
-    if args.json:
-        print(json.dumps(data, indent=2))
-    else:
-        print(
-            f"{out}: {len(moved)} frames x {garment.num_vertices} vertices embedded in "
-            f"{proxy_file}, stretch max {stats.stretch_max:.3f} p99 {stats.stretch_p99:.3f}, "
-            f"compression max {stats.compression_max:.3f} p99 {stats.compression_p99:.3f}, "
-            f"torn edges {stats.torn_edges}"
-        )
-    return 0
+    return _write_report(
+        args,
+        out,
+        data,
+        f"{out}: {len(moved)} frames x {garment.num_vertices} vertices embedded in "
+        f"{proxy_file}, stretch max {stats.stretch_max:.3f} p99 {stats.stretch_p99:.3f}, "
+        f"compression max {stats.compression_max:.3f} p99 {stats.compression_p99:.3f}, "
+        f"torn edges {stats.torn_edges}",
+    )
 
 
 def _body_check(cache, motion, shape) -> dict:

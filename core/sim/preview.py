@@ -1,4 +1,7 @@
-"""A contact sheet of a simulation: a grid of frames, garment over the posed body (PNG)."""
+"""A preview of a simulation: a PNG grid of frames, garment over the posed body.
+
+(:func:`core.shading.contact_sheet` lays out image tiles; this draws 3-D frames with matplotlib.)
+"""
 
 from __future__ import annotations
 
@@ -6,11 +9,11 @@ import os
 
 import numpy as np
 
-from core.body.colliders import capsule_distance
+from core.body.colliders import body_capsules, capsule_distance, pose_capsules
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.fileio import atomic_path
 from core.sim.cache import SimCache
-from core.sim.colliders import body_capsules, pose_capsules
+from core.skeleton import forward_kinematics, skinning_transforms
 
 
 def pick_frames(num_frames: int, count: int) -> np.ndarray:
@@ -18,7 +21,7 @@ def pick_frames(num_frames: int, count: int) -> np.ndarray:
     return np.unique(np.linspace(0, num_frames - 1, min(count, num_frames)).round().astype(int))
 
 
-def contact_sheet(
+def preview_sheet(
     path: str | os.PathLike,
     cache: SimCache,
     motion,
@@ -45,8 +48,6 @@ def contact_sheet(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    from core.skeleton import forward_kinematics, skinning_transforms
 
     shape = BodyShape() if shape is None else shape
     idx = pick_frames(cache.num_frames, frames)
