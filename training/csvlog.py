@@ -37,3 +37,22 @@ def truncate_rows(path: str | os.PathLike, columns: Sequence[str], step: int) ->
         w = csv.writer(f)
         w.writerow(columns)
         w.writerows(keep)
+
+
+def read_loss_log(path: str | os.PathLike) -> list[dict[str, float]]:
+    """Rows of a loss log as dicts of floats, in file order.
+
+    Cells that are not numbers (``off``, empty) are left out of their row; a row with no
+    number at all is kept as an empty dict. A missing file raises ``FileNotFoundError``.
+    """
+    rows = []
+    with open(path, newline="", encoding="utf-8") as f:
+        for row in csv.DictReader(f):
+            parsed = {}
+            for k, v in row.items():
+                try:
+                    parsed[k] = float(v)
+                except (TypeError, ValueError):
+                    continue
+            rows.append(parsed)
+    return rows

@@ -28,6 +28,8 @@ import numpy as np
 
 from core.errors import InputError
 from core.mesh import unique_edges  # noqa: F401  (re-exported for the GUI controller)
+from core.progress import StageEta as Eta  # noqa: F401  (the GUI's name for it)
+from training.csvlog import read_loss_log
 
 #: Key of the window's settings inside ``project.json``.
 SETTINGS_KEY = "gui"
@@ -502,24 +504,18 @@ def loss_plot(
     """Loss curves of training CSV logs (first column the step) as (H, W, 3) uint8, or None when
     no log has rows yet. Plots ``train_loss`` / ``val_loss`` (Joint2Coarse) and ``loss_g`` /
     ``l1`` (the renderer), whichever the file has, on a log scale."""
-    import csv
-
     series = []
     for label, path in logs.items():
         path = Path(path)
         if not path.is_file():
             continue
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = list(csv.DictReader(f))
+        rows = read_loss_log(path)
         for col in ("train_loss", "val_loss", "loss_g", "l1"):
-            pts = []
-            for r in rows:
-                try:
-                    x, y = float(r["step"]), float(r[col])
-                except (KeyError, TypeError, ValueError):
-                    continue
-                if math.isfinite(y) and y > 0:
-                    pts.append((x, y))
+            pts = [
+                (r["step"], r[col])
+                for r in rows
+                if "step" in r and col in r and math.isfinite(r[col]) and r[col] > 0
+            ]
             if pts:
                 series.append((f"{label} {col}", np.array(pts)))
     if not series:
@@ -556,35 +552,6 @@ def side_by_side(images: Sequence[np.ndarray], gap: int = 4) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------- job timing
-
-
-class Eta:
-    """Time left of a job made of stages, from the progress reported so far."""
-
-    def __init__(self, stages: int, clock: Callable[[], float] = time.perf_counter):
-        self.stages = max(1, stages)
-        self.clock = clock
-        self.start = clock()
-        self.done_stages = 0
-        self.fraction = 0.0  # of the current stage
-
-    def stage_done(self) -> None:
-        self.done_stages += 1
-        self.fraction = 0.0
-
-    def update(self, done: int, total: int) -> None:
-        self.fraction = min(max(done / total, 0.0), 1.0) if total > 0 else 0.0
-
-    @property
-    def progress(self) -> float:
-        """Overall fraction in [0, 1]."""
-        return min((self.done_stages + self.fraction) / self.stages, 1.0)
-
-    def seconds_left(self) -> float | None:
-        p = self.progress
-        if p <= 0.0:
-            return None
-        return (self.clock() - self.start) * (1.0 - p) / p
 
 
 def format_seconds(s: float | None) -> str:
