@@ -8,16 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
-from core.numeric import smoothstep
 
-from .fit import BodyFit
+from .fit import BodyFit, flared_tube
 from .skirts import Stack, _tube, _waistband
 from .surface import (
-    Folds,
     Part,
     cylinder_points,
     grid_part,
-    max_folds,
     orient_away,
     ribbon_points,
 )
@@ -77,24 +74,11 @@ def build_dress(cfg: DressConfig, res: float, fit: BodyFit, seed: int) -> list[P
     rng = np.random.default_rng(seed)
     h = fit.shape.height
     y_top, y_waist, y_hem = cfg.top * h, cfg.waist * h, cfg.hem * h
-    local = fit.profile(y_top + 0.01, y_waist - 0.01, cfg.clearance, hanging=False)
-    hang = fit.profile(y_waist, y_hem - 0.03, cfg.clearance, hanging=True)
-
-    def body(y, theta):
-        return np.where(y >= y_waist, local(y, theta), hang(y, theta))
-
+    local, body, radius = flared_tube(
+        fit, y_top, y_waist, y_hem, cfg.clearance, cfg.ease, cfg.flare, cfg.fold_depth,
+        cfg.folds, res, rng,
+    )  # fmt: skip
     top_edge = _top_edge(cfg, fit, local, y_top, y_waist)
-
-    angles = np.linspace(0, 2 * np.pi, 256, endpoint=False)
-    perim = 2 * np.pi * (float(np.mean(hang(y_hem, angles))) + cfg.flare)
-    folds = Folds.make(min(cfg.folds, max_folds(perim, res)), rng, twist=rng.normal() * 3)
-    skirt_len = y_waist - y_hem
-
-    def radius(y, theta, bound=False):
-        x = np.clip((y_waist - y) / skirt_len, 0.0, 1.0)
-        r = body(y, theta) + cfg.ease + cfg.flare * x**1.4
-        amp = cfg.fold_depth * smoothstep(x / 0.8)
-        return r + (amp if bound else amp * folds(theta, y_waist - y))
 
     def surface(u, theta):
         y = top_edge(theta) + u[:, None] * (y_hem - top_edge(theta))

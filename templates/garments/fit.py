@@ -26,6 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.body.shape import BodyShape, mannequin_skeleton
+from core.numeric import smoothstep
+
+from .surface import Folds, max_folds
 
 #: Bones (named by their parent joint) whose vertices a garment does not wrap.
 EXCLUDED_BONES = frozenset(
@@ -230,6 +233,67 @@ def body_fit(shape: BodyShape | None = None) -> BodyFit:
     return BodyFit(
         vertices=v, faces=f, kept=kept, arms=arms, edges=edges, axis_z=axis_z, shape=shape
     )
+
+
+def flared_tube(
+    fit: BodyFit,
+    y_top: float,
+    y_waist: float,
+    y_hem: float,
+    clearance: float,
+    ease: float,
+    flare: float,
+    fold_depth: float,
+    folds: int,
+    res: float,
+    rng: np.random.Generator,
+):
+    """A one-piece garment's radius: fitted above the waist, hanging below it, flaring and
+    folding towards the hem (a dress, a long top).
+
+    Parameters
+    ----------
+    fit : BodyFit
+    y_top, y_waist, y_hem : float
+        Heights (metres) of the top, the waist and the hem.
+    clearance, ease, flare, fold_depth : float
+        Metres: gap kept from the body, extra width everywhere, extra radius at the hem, depth
+        of the folds at the hem.
+    folds : int
+        Number of folds asked for (fewer when the hem is too short for them at ``res``).
+    res : float
+        Target edge length (metres).
+    rng : numpy Generator
+        Seeds the folds' irregularity (drawn here, in a fixed order).
+
+    Returns
+    -------
+    local : RadialProfile
+        The fitted (slice) profile above the waist.
+    body : callable ``(y, theta) -> r``
+        The radius the cloth must keep: ``local`` above the waist, hanging below.
+    radius : callable ``(y, theta, bound=False) -> r``
+        The garment's radius; ``bound=True`` gives its outer bound (folds at full depth).
+        ``y`` and ``theta`` broadcast together (float arrays).
+    """
+    local = fit.profile(y_top + 0.01, y_waist - 0.01, clearance, hanging=False)
+    hang = fit.profile(y_waist, y_hem - 0.03, clearance, hanging=True)
+
+    def body(y, theta):
+        return np.where(y >= y_waist, local(y, theta), hang(y, theta))
+
+    angles = np.linspace(0, 2 * np.pi, 256, endpoint=False)
+    perim = 2 * np.pi * (float(np.mean(hang(y_hem, angles))) + flare)
+    fold = Folds.make(min(folds, max_folds(perim, res)), rng, twist=rng.normal() * 3)
+    length = y_waist - y_hem
+
+    def radius(y, theta, bound=False):
+        x = np.clip((y_waist - y) / length, 0.0, 1.0)
+        r = body(y, theta) + ease + flare * x**1.4
+        amp = fold_depth * smoothstep(x / 0.8)
+        return r + (amp if bound else amp * fold(theta, y_waist - y))
+
+    return local, body, radius
 
 
 def _closing(radius: np.ndarray, rows: int, cols: int) -> np.ndarray:

@@ -23,10 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import InputError
-from core.numeric import smoothstep
 
-from .fit import BodyFit
-from .surface import Folds, Part, cylinder_points, grid_faces, grid_size, max_folds
+from .fit import BodyFit, flared_tube
+from .surface import Part, cylinder_points, grid_faces, grid_size
 
 #: Probe grid used to measure the surface before choosing its resolution.
 _PROBE_ROWS, _PROBE_COLS = 40, 1024
@@ -100,21 +99,10 @@ def build_top(cfg: TopConfig, res: float, fit: BodyFit, seed: int) -> list[Part]
     rng = np.random.default_rng(seed)
     h = fit.shape.height
     y_s, y_waist, y_hem = cfg.shoulder * h, cfg.waist * h, cfg.hem * h
-    local = fit.profile(y_s + 0.01, y_waist - 0.01, cfg.clearance, hanging=False)
-    hang = fit.profile(y_waist, y_hem - 0.03, cfg.clearance, hanging=True)
-
-    def body(y, theta):
-        return np.where(y >= y_waist, local(y, theta), hang(y, theta))
-
-    angles = np.linspace(0, 2 * np.pi, 256, endpoint=False)
-    perim = 2 * np.pi * (float(np.mean(hang(y_hem, angles))) + cfg.flare)
-    folds = Folds.make(min(cfg.folds, max_folds(perim, res)), rng, twist=rng.normal() * 3)
-    length = y_waist - y_hem
-
-    def radius(y, theta):
-        x = np.clip((y_waist - y) / length, 0.0, 1.0)
-        r = body(y, theta) + cfg.ease + cfg.flare * x**1.4
-        return r + cfg.fold_depth * smoothstep(x / 0.8) * folds(theta, y_waist - y)
+    local, _, radius = flared_tube(
+        fit, y_s, y_waist, y_hem, cfg.clearance, cfg.ease, cfg.flare, cfg.fold_depth,
+        cfg.folds, res, rng,
+    )  # fmt: skip
 
     # Columns first (an even number, so that every column has its mirror image front to
     # back), then the strap bands on whole columns, then the top edge.
