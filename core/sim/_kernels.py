@@ -38,6 +38,12 @@ def contact_stiffness(
     out[i] = wp.max(static_diags[i], floor)
 
 
+@wp.func
+def _ahead(q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=wp.vec3), i: int, ahead: float):
+    """Where particle ``i`` will be ``ahead`` seconds on at its velocity."""
+    return q[i] + ahead * qd[i]
+
+
 @wp.kernel
 def accumulate_normals(
     faces: wp.array(dtype=wp.vec3i),
@@ -48,8 +54,8 @@ def accumulate_normals(
 ):
     """Area-weighted vertex normals (unnormalised) of the positions ``ahead`` seconds on."""
     f = faces[wp.tid()]
-    a = q[f[0]] + ahead * qd[f[0]]
-    n = wp.cross(q[f[1]] + ahead * qd[f[1]] - a, q[f[2]] + ahead * qd[f[2]] - a)
+    a = _ahead(q, qd, f[0], ahead)
+    n = wp.cross(_ahead(q, qd, f[1], ahead) - a, _ahead(q, qd, f[2], ahead) - a)
     wp.atomic_add(normals, f[0], n)
     wp.atomic_add(normals, f[1], n)
     wp.atomic_add(normals, f[2], n)
@@ -74,9 +80,9 @@ def set_sewn(
     i = wp.tid()
     h = hosts[i]
     w = barycentric[i]
-    a = q[h[0]] + ahead * qd[h[0]]
-    b = q[h[1]] + ahead * qd[h[1]]
-    c = q[h[2]] + ahead * qd[h[2]]
+    a = _ahead(q, qd, h[0], ahead)
+    b = _ahead(q, qd, h[1], ahead)
+    c = _ahead(q, qd, h[2], ahead)
     e1 = wp.normalize(b - a)
     n = wp.normalize(wp.cross(b - a, c - a))
     e2 = wp.cross(n, e1)
