@@ -10,7 +10,9 @@ import os
 import numpy as np
 
 from core.body.colliders import body_capsules, capsule_distance, pose_capsules
+from core.body.mannequin import make_body
 from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.skinning import linear_blend_skinning
 from core.fileio import atomic_path
 from core.sim.cache import SimCache
 from core.skeleton import forward_kinematics, skinning_transforms
@@ -58,10 +60,7 @@ def preview_sheet(
     capsules = body_capsules(skeleton, shape)
     ends = pose_capsules(capsules, transforms)
     body_v = body_f = None
-    try:
-        from core.body.mannequin import make_body
-        from core.body.skinning import linear_blend_skinning
-
+    try:  # the mannequin mesh needs libigl and fast-simplification
         body = make_body(shape, 3000)
         body_v = linear_blend_skinning(body.vertices, body.weights, transforms)
         body_f = body.faces

@@ -381,7 +381,7 @@ class _Scene:
         particles, and ``linear_iterations`` of them run per solver iteration. The ELL matrix is
         constant (built once from the rest shape); it is unpacked here once.
         """
-        from core.sim._kernels import pcg_serial
+        from core.sim._kernels import pcg_serial  # imports warp: deferred
 
         wp, dev, solver = self.wp, self.device, self.solver
         n = self.model.particle_count
@@ -422,7 +422,7 @@ class _Scene:
         free cloth stays as newton makes it (~0: kinematic cloth does not push cloth; a sewn
         seam pushing the very part it follows would push itself away without end).
         """
-        from core.sim._kernels import contact_stiffness
+        from core.sim._kernels import contact_stiffness  # imports warp: deferred
 
         wp, dev, solver = self.wp, self.device, self.solver
         col = solver.collision
@@ -507,7 +507,7 @@ class _Scene:
 
         ``poses``: the capsules' (pa, pb, velocity) for them when already computed (a whole
         drive's at once, :meth:`_body_poses` and :meth:`_body_vel` on all its steps)."""
-        from core.sim._kernels import scale_velocities, set_pinned
+        from core.sim._kernels import scale_velocities, set_pinned  # imports warp: deferred
 
         wp = self.wp
         if poses is None:
@@ -549,7 +549,7 @@ class _Scene:
         self._sew(0.0)
 
     def _sew(self, ahead: float) -> None:
-        from core.sim._kernels import accumulate_normals, set_sewn
+        from core.sim._kernels import accumulate_normals, set_sewn  # imports warp: deferred
 
         if not len(self.seams.indices):
             return

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.body.mannequin import make_body
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.numeric import smoothstep
 
@@ -48,8 +49,6 @@ def body_mesh(shape: BodyShape | None = None) -> tuple[np.ndarray, np.ndarray]:
     vertices : (V, 3) float64
     faces : (F, 3) int64
     """
-    from core.body.mannequin import make_body
-
     body = make_body(BodyShape() if shape is None else shape)
     return np.asarray(body.vertices, np.float64), np.asarray(body.faces, np.int64)
 

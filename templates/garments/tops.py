@@ -22,7 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.body.shape import mannequin_skeleton
 from core.errors import InputError
+from core.proxy.topology import boundary_loops
 
 from .fit import BodyFit, flared_tube
 from .surface import Part, cylinder_points, grid_faces, grid_size
@@ -301,9 +303,6 @@ def _add_sleeve(cfg, fit, res, vertices, faces, side):
     the armhole's arc length, so the sleeve never twists over itself), then move out from the
     arm's axis where they would come closer to the arm than the clearance.
     """
-    from core.body.shape import mannequin_skeleton
-    from core.proxy.topology import boundary_loops
-
     skel = mannequin_skeleton(fit.shape)
     pos = skel.rest_positions().astype(np.float64)
     prefix = "Left" if side > 0 else "Right"
