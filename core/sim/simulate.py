@@ -2,7 +2,7 @@
 
 Scene: the garment mesh as cloth (membrane + dihedral bending, the fabric preset's density and
 stiffness), gravity along -Y, the body as kinematic capsules
-(:mod:`core.sim.colliders`) posed every solver step, the waistband/neckline pinned to the
+(:mod:`core.body.colliders`) posed every solver step, the waistband/neckline pinned to the
 torso bones and loose pieces (frills, a sash, a bow) sewn to the part they lie on
 (:mod:`core.sim.pins`). Solver: newton's Style3D (implicit projective dynamics
 with a PCG global step) by default: stable at the few large steps a CPU can afford, and its
