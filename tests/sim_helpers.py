@@ -9,6 +9,7 @@ import numpy as np
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.mesh import Mesh
 from core.motion.motion import Motion
+from core.proxy.testing import ring_grid
 from core.skeleton import rotation_about
 
 
@@ -29,19 +30,11 @@ def frustum_skirt(
     h = height
     y_top, y_bot = 0.57 * h, hem_height * h
     r_top, r_bot = 0.19, hem_radius
-    verts = []
-    for j in range(rings):
-        s = j / (rings - 1)
-        y, r = y_top + (y_bot - y_top) * s, r_top + (r_bot - r_top) * s
-        a = 2 * np.pi * np.arange(around) / around
-        r = r + fold_depth * s**1.5 * np.sin(folds * a)
-        verts.append(np.stack([r * np.sin(a), np.full(around, y), r * np.cos(a)], axis=1))
-    faces = []
-    for j in range(rings - 1):
-        for i in range(around):
-            a, b = j * around + i, j * around + (i + 1) % around
-            faces += [(a, a + around, b), (b, a + around, b + around)]
-    return Mesh(np.concatenate(verts).astype(np.float32), np.array(faces, np.int64))
+    s = np.arange(rings)[:, None] / (rings - 1)
+    a = 2 * np.pi * np.arange(around) / around
+    r = r_top + (r_bot - r_top) * s + fold_depth * s**1.5 * np.sin(folds * a)
+    verts, faces = ring_grid(y_top + (y_bot - y_top) * s[:, 0], r)
+    return Mesh(verts.astype(np.float32), faces)
 
 
 def spin_motion(frames: int = 6, fps: float = 30.0, turns_per_s: float = 0.5) -> Motion:
@@ -81,19 +74,11 @@ def frilled_skirt(around: int = 24, rings: int = 10, gap: float = 0.002) -> tupl
     r = np.linalg.norm(v[:, [0, 2]], axis=1, keepdims=True)
     v[:, [0, 2]] *= (r + gap) / r
     frill_rings, frill_around = 4, 2 * around
-    fv = []
-    for j in range(frill_rings):
-        y = y_bot + 0.015 - 0.065 * j / (frill_rings - 1)
-        rad = r_bot + gap + 0.004 + 0.01 * j / (frill_rings - 1)  # wider than the hem: slides off
-        a = 2 * np.pi * np.arange(frill_around) / frill_around
-        fv.append(np.stack([rad * np.sin(a), np.full(frill_around, y), rad * np.cos(a)], axis=1))
-    ff = []
-    for j in range(frill_rings - 1):
-        for i in range(frill_around):
-            a, b = j * frill_around + i, j * frill_around + (i + 1) % frill_around
-            ff += [(a, a + frill_around, b), (b, a + frill_around, b + frill_around)]
+    t = np.arange(frill_rings) / (frill_rings - 1)
+    rad = r_bot + gap + 0.004 + 0.01 * t  # wider than the hem: slides off
+    fv, ff = ring_grid(y_bot + 0.015 - 0.065 * t, np.repeat(rad[:, None], frill_around, 1))
     n = inner.num_vertices
-    verts = np.concatenate([inner.vertices, v, np.concatenate(fv)]).astype(np.float32)
-    faces = np.concatenate([inner.faces, inner.faces + n, np.array(ff, np.int64) + 2 * n])
+    verts = np.concatenate([inner.vertices, v, fv]).astype(np.float32)
+    faces = np.concatenate([inner.faces, inner.faces + n, ff + 2 * n])
     piece = np.repeat([0, 1, 2], [n, n, frill_rings * frill_around])
     return Mesh(verts, faces), piece

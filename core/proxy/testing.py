@@ -65,6 +65,38 @@ def tube(
     return pts, f.astype(np.int64)
 
 
+def ring_grid(heights: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rings around the vertical (Y) axis joined into an open tube.
+
+    Parameters
+    ----------
+    heights : (R,) float
+        Height of each ring, top first.
+    radii : (R, A) float
+        Radius of ring ``j`` at angle ``2 pi i / A`` (0 faces +Z, pi/2 faces +X).
+
+    Returns
+    -------
+    vertices : (R * A, 3) float64
+        Ring by ring: ``(r sin a, y, r cos a)``.
+    faces : (2 (R - 1) A, 3) int64
+        Two triangles per quad, ring by ring, outward for rings going down.
+    """
+    heights = np.asarray(heights, np.float64)
+    radii = np.asarray(radii, np.float64)
+    rings, around = radii.shape
+    a = 2 * np.pi * np.arange(around) / around
+    verts = np.stack(
+        [radii * np.sin(a), np.broadcast_to(heights[:, None], radii.shape), radii * np.cos(a)], -1
+    ).reshape(-1, 3)
+    j, i = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
+    p, q = j * around + i, j * around + (i + 1) % around
+    faces = np.stack(
+        [np.stack([p, p + around, q], -1), np.stack([q, p + around, q + around], -1)], -2
+    )
+    return verts, faces.reshape(-1, 3).astype(np.int64)
+
+
 def skirt_tube(
     *,
     waist_y: float = 1.0,
