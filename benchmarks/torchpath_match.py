@@ -1,7 +1,7 @@
 """How far the torch-only render path's images are from today's path (``dng render``).
 
 Plays a trained project twice, frame by frame as a viewer streams it: through
-:class:`training.playback.Playback` (Embree rasterizer, numpy features) and through
+:class:`pipeline.playback.Playback` (Embree rasterizer, numpy features) and through
 :class:`training.torchpath.TorchPlayer` on a bundle of the same project (everything in torch),
 with the project's Joint2Coarse or another model file (``--joint2coarse``, e.g. ours, trained
 beside the paper's as ``joint2coarse/compare-ours/joint2coarse.pt``)::
@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import InputError
-from training.playback import Playback, load_motion_for
+from pipeline.playback import Playback, load_motion_for
+from pipeline.torch_export import export_bundle
 from training.torchpath import TorchPlayer
-from training.torchpath.export import export_bundle
 
 
 def measure(

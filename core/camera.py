@@ -371,7 +371,7 @@ def follow_camera(
     """A camera that follows a character: it looks at height ``target_y`` above the root's
     (3,) horizontal position from ``radius * distance_scale`` metres, at ``azimuth_deg`` (0:
     the front, +Z) and ``elevation_deg``, with a vertical field of view ``fov_y_deg``. What
-    the player's default view is (the data set's framing: ``training.pipeline.dataset_rig``)."""
+    the player's default view is (the data set's framing: ``pipeline.stages.dataset.dataset_rig``)."""
     target = np.array([root[0], target_y, root[2]], np.float64)
     eye = orbit_eye(
         target, radius * distance_scale, np.radians(azimuth_deg), np.radians(elevation_deg)

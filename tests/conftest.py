@@ -69,8 +69,8 @@ def smoke_project(tmp_path_factory, bvh_dir) -> Path:
     """A project made by the ``smoke`` preset of ``dng demo`` (every stage, the neural renderer
     and the evaluation included), shared by the whole session: treat it as read-only (write
     only into subfolders of your own, like ``finetune/NAME``)."""
-    from training.demo import run_demo
-    from training.pipeline import PRESETS
+    from pipeline.config import PRESETS
+    from pipeline.demo import run_demo
 
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("smoke-project")

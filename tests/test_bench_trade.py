@@ -71,7 +71,7 @@ def test_trade_bad_project_exits_2(tmp_path, dng):
     assert code == 2
     assert str(missing) in err and "not found" in err
 
-    from training.pipeline import PRESETS
+    from pipeline.config import PRESETS
 
     half = tmp_path / "half"  # a project with settings but nothing trained
     half.mkdir()

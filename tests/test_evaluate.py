@@ -128,7 +128,8 @@ def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
 
 def test_ablations_train_and_join_the_table(smoke_project, tmp_path):
     from core.project import Project
-    from training.pipeline import ablation_label, project_config
+    from pipeline.config import project_config
+    from pipeline.stages.ablations import ablation_label
 
     copy = _copy(smoke_project, tmp_path)
     dng = [sys.executable, "-m", "app.cli", "eval", str(copy)]
@@ -154,7 +155,9 @@ def test_template_proxy_ablation(smoke_project, tmp_path):
     from dataclasses import replace
 
     from core.project import Project
-    from training.pipeline import PRESETS, stage_ablation, stage_eval
+    from pipeline.config import PRESETS
+    from pipeline.stages.ablations import stage_ablation
+    from pipeline.stages.evaluate import stage_eval
 
     copy = _copy(smoke_project, tmp_path)
     config = replace(PRESETS["smoke"], ablations=("template-short-skirt",))

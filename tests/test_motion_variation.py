@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 from core.errors import InputError
 from core.motion.procedural import make_motion
 from core.motion.variation import source_frames, vary_motion
-from training.pipeline import PRESETS, MotionSpec, _make_motion
+from pipeline.config import PRESETS, MotionSpec
+from pipeline.stages.motions import motion_from_spec
 
 
 @pytest.fixture(scope="module")
@@ -61,9 +62,9 @@ def test_bad_variations_are_refused(dance):
 def test_motion_specs_with_variations_keep_their_frame_count(bvh_dir):
     config = PRESETS["smoke"]
     spec = MotionSpec("v", "walk", 25, seed=2, speed=1.4, amplitude=1.2, heading_deg=30.0)
-    assert _make_motion(spec, config).num_frames == 25
+    assert motion_from_spec(spec, config).num_frames == 25
     spec = MotionSpec("c", "file", 20, path=str(bvh_dir / "01_03.bvh"), start_s=3.0, speed=0.8)
-    assert _make_motion(spec, config).num_frames == 20
+    assert motion_from_spec(spec, config).num_frames == 20
 
 
 def test_turn_spins_the_body_in_place(dance):

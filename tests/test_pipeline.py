@@ -11,7 +11,7 @@ import pytest
 
 from core.errors import InputError
 from core.project import Project
-from training.pipeline import PRESETS, PipelineConfig, preset, project_config
+from pipeline.config import PRESETS, PipelineConfig, preset, project_config
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +72,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     for m in j2c["motions"].values():
         assert 0 < m["autoencoder_error_mm"]["mean_mm"] < m["autoencoder_error_mm"]["p95_mm"]
     # The time-left estimate has one expected cost per stage the demo ran, in its order.
-    from training.demo import stage_costs
+    from pipeline.demo import stage_costs
 
     costs = stage_costs(PRESETS["smoke"])
     assert len(costs) == len(report["stage_seconds"])
@@ -83,7 +83,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
 def test_time_left_follows_the_pace_of_the_stages_that_ran():
     import io
 
-    from training.demo import _Progress
+    from pipeline.demo import _Progress
 
     now = [0.0]
 
@@ -109,7 +109,7 @@ def test_time_left_follows_the_pace_of_the_stages_that_ran():
 
 
 def test_rerun_reuses_every_stage(smoke):
-    from training.demo import run_demo
+    from pipeline.demo import run_demo
 
     out, _ = smoke
     again = run_demo(PRESETS["smoke"], out, preset_name="smoke")
@@ -148,7 +148,7 @@ def test_dataset_samples_match_the_renderer_contract(smoke):
 
 
 def test_renderer_stage_trains_and_reports(smoke):
-    from training.pipeline import read_loss_log
+    from training.csvlog import read_loss_log
     from training.renderer.train import load_model
 
     out, report = smoke
@@ -282,7 +282,7 @@ def test_settings_round_trip_and_errors(tmp_path):
 def test_overrides_reach_their_network_and_dnr_with_our_loss():
     from dataclasses import replace
 
-    from training.pipeline import baseline_config, joint2coarse_config, renderer_config
+    from pipeline.config import baseline_config, joint2coarse_config, renderer_config
 
     quick = preset("quick")
     ours = renderer_config(quick)

@@ -1,4 +1,4 @@
-"""training.playback: motions, shapes, cameras, streaming renders; compositing for fine-tuning;
+"""pipeline.playback: motions, shapes, cameras, streaming renders; compositing for fine-tuning;
 frame writers."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from core.camera import make_camera
+from core.compositing import fit_image, recomposite, surface_coverage
 from core.errors import InputError
+from pipeline.playback import FrameWriter, Playback, load_motion_for
 from tests.conftest import assert_close
-from training.finetune import fit_image, recomposite, surface_coverage
-from training.playback import FrameWriter, Playback, load_motion_for
 
 SIZE = 64
 
@@ -32,7 +32,7 @@ def playback(smoke_project) -> Playback:
 def test_motion_sources(smoke_project, bvh_dir):
     from core.body.shape import mannequin_skeleton
     from core.project import Project
-    from training.pipeline import project_config
+    from pipeline.config import project_config
 
     config = project_config(Project(smoke_project))
     names = tuple(mannequin_skeleton(config.body).names)

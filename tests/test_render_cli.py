@@ -198,7 +198,7 @@ def test_finetune_bad_inputs(smoke_project, tmp_path, dng):
 @pytest.mark.slow
 def test_finetune_body_shape(smoke_project, tmp_path, dng):
     from core.project import Project
-    from training.pipeline import project_config
+    from pipeline.config import project_config
 
     code, out, err = dng(
         "finetune", smoke_project, "--body-shape", "height=1.8", "build=0.4",

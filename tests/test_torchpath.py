@@ -1,5 +1,5 @@
 """The torch-only render path: its rasterizer against the numpy reference, its import footprint,
-its images against today's path (training.playback), and CUDA against the CPU (``gpu``)."""
+its images against today's path (pipeline.playback), and CUDA against the CPU (``gpu``)."""
 
 from __future__ import annotations
 
@@ -149,7 +149,7 @@ def test_renderer_forward_bf16_close_to_fp32():
 
 @pytest.fixture(scope="module")
 def bundle_file(smoke_project, tmp_path_factory):
-    from training.torchpath.export import export_bundle
+    from pipeline.torch_export import export_bundle
 
     path = tmp_path_factory.mktemp("torchpath") / "smoke.torch.pt"
     export_bundle(smoke_project, path)
@@ -158,7 +158,7 @@ def bundle_file(smoke_project, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def playback(smoke_project):
-    from training.playback import Playback, load_motion_for
+    from pipeline.playback import Playback, load_motion_for
 
     pb = Playback(smoke_project)
     pb.set_motion(load_motion_for(pb.project, pb.config.train_motion.name))
@@ -173,7 +173,7 @@ def ours_file(smoke_project):
 
 @pytest.fixture(scope="module")
 def ours_bundle(smoke_project, ours_file, tmp_path_factory):
-    from training.torchpath.export import export_bundle
+    from pipeline.torch_export import export_bundle
 
     path = tmp_path_factory.mktemp("torchpath") / "ours.torch.pt"
     export_bundle(smoke_project, path, frames=12, joint2coarse=ours_file)
@@ -182,7 +182,7 @@ def ours_bundle(smoke_project, ours_file, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def ours_playback(smoke_project, ours_file):
-    from training.playback import Playback, load_motion_for
+    from pipeline.playback import Playback, load_motion_for
 
     pb = Playback(smoke_project, joint2coarse_path=ours_file)
     pb.set_motion(load_motion_for(pb.project, pb.config.train_motion.name, frames=12))
@@ -191,8 +191,8 @@ def ours_playback(smoke_project, ours_file):
 
 def ours_descriptors(smoke_project, ours_file):
     """Our model and the descriptors of the smoke project's motions: (model, (N, D) float32)."""
+    from pipeline.playback import Playback, load_motion_for
     from training.joint2coarse import joint2coarse_inputs, load_model, motion_descriptors
-    from training.playback import Playback, load_motion_for
 
     model = load_model(ours_file)
     pb = Playback(smoke_project, joint2coarse_path=ours_file)

@@ -30,6 +30,11 @@ SAMPLE_KEYS = {
 }
 
 
+
+def sample_name(t: int, k: int) -> str:
+    """File stem of the sample centred on frame ``t`` seen by camera ``k``."""
+    return f"t{t:05d}_v{k:02d}"
+
 @dataclass(frozen=True)
 class ProxyFrames:
     """The proxy as the rasterizer needs it, for every frame of a clip.
@@ -170,7 +175,6 @@ class GarmentDataset:
         import torch
         from PIL import Image
 
-        from training.pipeline import sample_name
 
         t, k, camera = self.samples[i]
         frames = [self.proxy_maps(f, camera) for f in (t - 1, t, t + 1)]

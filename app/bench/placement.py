@@ -116,7 +116,7 @@ def project_methods(project, config, names: list[str] | None) -> dict[str, Path]
     """name -> model file of the methods ``dng eval`` renders on Joint2Coarse's proxy from the
     project's own data (the template ablation renders another project's proxy: left out)."""
     from core.errors import InputError
-    from training.pipeline import eval_methods
+    from pipeline.stages.evaluate import eval_methods
 
     found = {
         name: path
@@ -165,8 +165,8 @@ def _proxies(project, motions: list[str], autoencoder: bool) -> dict[str, dict]:
     """motion -> {"sim": (T, V, 3), "pred": ..., and "autoencoder": ... when asked}."""
     from core.errors import InputError
     from core.sim import load_cache
+    from pipeline.stages.motions import load_project_motion
     from training.joint2coarse import joint2coarse_inputs, load_model, reconstruct_proxy
-    from training.pipeline import load_project_motion
 
     net = load_model(project.path("joint2coarse", "joint2coarse.pt")) if autoencoder else None
     if net is not None and not hasattr(net, "shape_encoder"):  # ours: the paper's model beside it
@@ -230,9 +230,9 @@ def run(args: argparse.Namespace) -> int:
     from core.errors import InputError
     from core.fileio import write_json
     from core.project import Project
+    from pipeline.config import project_config
     from training.baselines import load_for_evaluation
     from training.joint2coarse import vertex_errors
-    from training.pipeline import project_config
 
     root = Path(args.project)
     if not root.is_dir():

@@ -115,8 +115,8 @@ def synthetic_setup(frames: int, resolution: int = 64) -> BenchSetup:
 
 def project_setup(root, frames: int) -> BenchSetup:
     """A trained project: its training motion (procedural when shorter than ``frames``)."""
+    from pipeline.playback import Playback, load_motion_for
     from training.joint2coarse import joint2coarse_inputs
-    from training.playback import Playback, load_motion_for
 
     pb = Playback(root)
     name = pb.config.train_motion.name
@@ -735,7 +735,7 @@ def run(args: argparse.Namespace) -> int:
 
             bundle = load_bundle(args.bundle)
         elif args.project:
-            from training.torchpath.export import make_bundle
+            from pipeline.torch_export import make_bundle
 
             bundle = make_bundle(args.project)
         else:

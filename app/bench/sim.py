@@ -98,7 +98,8 @@ def bench_motion(clip: str, frames: int, seed: int, shape):
     """The clip's motion on the mannequin of ``shape``, or None for a CMU file not here."""
     from core.errors import InputError
     from core.motion.procedural import PROCEDURAL_KINDS, make_motion
-    from training.pipeline import CMU_CLIP, MotionSpec, PipelineConfig, _make_motion
+    from pipeline.config import CMU_CLIP, MotionSpec, PipelineConfig
+    from pipeline.stages.motions import motion_from_spec
 
     if clip in PROCEDURAL_KINDS:
         return make_motion(clip, frames, 30.0, seed, shape)
@@ -106,7 +107,7 @@ def bench_motion(clip: str, frames: int, seed: int, shape):
         if not CMU_CLIP.is_file():
             return None
         spec = MotionSpec(clip, "file", frames, path=str(CMU_CLIP), start_s=2.0)
-        return _make_motion(spec, PipelineConfig(body=shape))
+        return motion_from_spec(spec, PipelineConfig(body=shape))
     raise InputError(f"unknown clip {clip!r}; use {', '.join(PROCEDURAL_KINDS)} or cmu-01_01")
 
 

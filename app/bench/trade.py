@@ -27,7 +27,7 @@ Four measurements, on the machine it runs on, in one run:
    column is the proxy's geometric Hausdorff distance to the target at rest (from the proxy
    report, relative to the target's bounding-box diagonal), not image quality.
 3. **Neural against simulation.** ms per frame of Joint2Coarse streaming + neural render
-   (:class:`training.playback.Playback` on the test motion at the project's image size) against
+   (:class:`pipeline.playback.Playback` on the test motion at the project's image size) against
    newton cloth simulation (:func:`core.sim.simulate.simulate`) of the detailed target
    (``garment/target.obj``) on the first ``--sim-frames`` frames of the same motion with the
    project's fabric and substeps (when that blows up, as a layered target can at a proxy's
@@ -241,7 +241,7 @@ def check_project(root: Path, motion: str | None) -> tuple[object, str]:
     from app.bench import project_test_sets
     from core.errors import InputError
     from core.project import Project
-    from training.pipeline import project_config
+    from pipeline.config import project_config
 
     if not root.is_dir():
         raise InputError("project folder not found", root)
@@ -269,7 +269,7 @@ def check_project(root: Path, motion: str | None) -> tuple[object, str]:
 def setting_config(config, size: int, widths: tuple[int, int], steps: int):
     """The project's renderer configuration at ``size`` px with other widths and a step budget
     (no previews; one checkpoint at the end)."""
-    from training.pipeline import renderer_config
+    from pipeline.config import renderer_config
 
     return renderer_config(config).replace(
         image_size=int(size), base_width=widths[0], max_width=widths[1], steps=int(steps),
@@ -322,8 +322,8 @@ def train_setting(project: str, size: int, widths: tuple, steps: int, out_dir: s
     import shutil
 
     from core.project import Project
+    from pipeline.config import project_config
     from training.dataset import GarmentDataset
-    from training.pipeline import project_config
     from training.renderer.train import train_renderer
 
     config = project_config(Project(project))
@@ -391,8 +391,8 @@ def proxy_axis(project: str, sizes: list, frames: int, device: str) -> dict:
     from core.mesh import load_mesh
     from core.project import Project
     from core.proxy import ProxyConfig, derive_proxy
+    from pipeline.config import project_config, renderer_config
     from training.joint2coarse.model import Joint2CoarseNet
-    from training.pipeline import project_config, renderer_config
     from training.renderer import RenderNet
 
     config = project_config(Project(project))
@@ -439,8 +439,8 @@ def neural_playback(project: str, model: str, motion: str, frames: int, device: 
     from types import SimpleNamespace
 
     from app.bench.render import WARMUP, time_joint2coarse
+    from pipeline.playback import Playback, load_motion_for
     from training.joint2coarse import joint2coarse_inputs
-    from training.playback import Playback, load_motion_for
 
     pb = Playback(project, device=device, renderer_path=model)
     clip = load_motion_for(pb.project, motion)
@@ -492,8 +492,8 @@ def simulate_target(
     from core.sim import SimConfig
     from core.sim.config import QUALITY
     from core.sim.simulate import simulate
-    from training.pipeline import project_config
-    from training.playback import load_motion_for
+    from pipeline.config import project_config
+    from pipeline.playback import load_motion_for
 
     project_obj = Project(project)
     config = project_config(project_obj)
@@ -586,7 +586,7 @@ def run(args: argparse.Namespace) -> int:
 
     from core.errors import InputError
     from core.fileio import write_json
-    from training.pipeline import renderer_config
+    from pipeline.config import renderer_config
 
     root = Path(args.project)
     config, motion = check_project(root, args.motion)

@@ -30,7 +30,8 @@ def run(args: argparse.Namespace) -> int:
 
     from core.errors import InputError
     from core.project import Project
-    from training.pipeline import project_config, stage_dataset
+    from pipeline.config import project_config
+    from pipeline.stages.dataset import stage_dataset
 
     project = Project(args.project)
     config = project_config(project)

@@ -28,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.demo import run_demo
-    from training.pipeline import preset
+    from pipeline.config import preset
+    from pipeline.demo import run_demo
 
     run_demo(preset(args.preset), args.out, preset_name=args.preset, force=args.force)
     return 0

@@ -74,8 +74,8 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
 
     from core.errors import InputError
     from core.project import Project
-    from training.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
-    from training.pipeline import project_config
+    from pipeline.config import project_config
+    from pipeline.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
 
     if args.motion is None:
         raise InputError("dng eval joint2coarse needs --motion FILE.bvh or a procedural kind")
@@ -96,15 +96,11 @@ def run_renderers(args: argparse.Namespace) -> int:
 
     from core.errors import InputError
     from core.project import Project
-    from training.pipeline import (
-        available_test_motions,
-        check_ablation,
-        project_config,
-        stage_ablation,
-        stage_eval,
-        stage_simulate,
-        stage_testset,
-    )
+    from pipeline.config import available_test_motions, project_config
+    from pipeline.stages.ablations import check_ablation, stage_ablation
+    from pipeline.stages.dataset import stage_testset
+    from pipeline.stages.evaluate import stage_eval
+    from pipeline.stages.simulate import stage_simulate
 
     project = Project(args.project)
     config = project_config(project)

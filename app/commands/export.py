@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_torch(args: argparse.Namespace) -> int:
     import os
 
-    from training.torchpath.export import export_bundle
+    from pipeline.torch_export import export_bundle
 
     bundle = export_bundle(
         args.project, args.out, args.motion, frames=args.frames, joint2coarse=args.joint2coarse

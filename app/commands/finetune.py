@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from core.errors import InputError
-    from training import finetune
+    from pipeline import finetune
 
     if args.steps is not None and args.steps < 1:
         raise InputError(f"--steps must be >= 1, got {args.steps}")
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
         from core.body.shape import BodyShape
         from core.project import Project
-        from training.pipeline import project_config
+        from pipeline.config import project_config
 
         if not Path(args.project).is_dir():
             raise InputError("project folder not found", args.project)

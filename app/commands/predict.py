@@ -51,8 +51,8 @@ def run_proxy(args: argparse.Namespace) -> int:
     from core.project import Project
     from core.sim import SimCache, export_cache
     from core.usd import USD_SUFFIXES, write_usd
+    from pipeline.config import project_config
     from training.joint2coarse import joint2coarse_inputs, load_model, predict_proxy
-    from training.pipeline import project_config
 
     usd = Path(args.out).suffix.lower() in USD_SUFFIXES
     if args.body and not usd:
@@ -69,8 +69,8 @@ def run_proxy(args: argparse.Namespace) -> int:
     proxy = load_mesh(project.path("proxy", "positions.obj"))[0]
     capsules = radii = None
     if args.push_out:  # the capsules the project's simulation collides with
+        from pipeline.config import sim_config
         from training.joint2coarse.collision import simulation_colliders
-        from training.pipeline import sim_config
 
         top = float(proxy.vertices[:, 1].max())
         arms = sim_config(config).arm_colliders

@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from core.errors import InputError
-    from training.playback import FrameWriter, Playback, load_motion_for
+    from pipeline.playback import FrameWriter, Playback, load_motion_for
 
     if args.size is not None and args.size < 8:
         raise InputError(f"--size must be at least 8 pixels, got {args.size}")
@@ -177,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         beside = Path(args.renderer).parent / "backdrop-0.png"
         backdrop = beside if beside.is_file() else None
     if backdrop is not None:
-        from training.finetune import load_image
+        from core.compositing import load_image
 
         pb.set_backdrop(load_image(backdrop))
     motion = load_motion_for(pb.project, args.motion, frames=args.frames, seed=args.seed)

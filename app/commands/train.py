@@ -74,7 +74,7 @@ def _add_set(parser: argparse.ArgumentParser, what: str, example: str) -> None:
 def run_joint2coarse(args: argparse.Namespace) -> int:
     import json
 
-    from training.pipeline import stage_joint2coarse
+    from pipeline.stages.joint2coarse import stage_joint2coarse
 
     project, config = _config_with(args, "joint2coarse")
     report = stage_joint2coarse(project, config, print)
@@ -92,7 +92,7 @@ def _config_with(args: argparse.Namespace, network: str = "renderer"):
     from dataclasses import replace
 
     from core.project import Project
-    from training.pipeline import project_config
+    from pipeline.config import project_config
 
     project = Project(args.project)
     config = project_config(project)
@@ -113,7 +113,7 @@ def _config_with(args: argparse.Namespace, network: str = "renderer"):
             **dict(parse_setting(item) for item in args.overrides),
         }
     config = replace(config, **changes)
-    from training.pipeline import baseline_config, joint2coarse_config, renderer_config
+    from pipeline.config import baseline_config, joint2coarse_config, renderer_config
 
     # an unknown preset, kind or setting fails here, before the settings change
     joint2coarse_config(config)
@@ -150,7 +150,7 @@ def parse_setting(item: str) -> tuple[str, object]:
 def run_renderer(args: argparse.Namespace) -> int:
     import json
 
-    from training.pipeline import stage_renderer
+    from pipeline.stages.renderer import stage_renderer
 
     project, config = _config_with(args)
     report = stage_renderer(project, config, print)
@@ -163,7 +163,7 @@ def run_renderer(args: argparse.Namespace) -> int:
 def run_baselines(args: argparse.Namespace) -> int:
     import json
 
-    from training.pipeline import stage_baselines
+    from pipeline.stages.baselines import stage_baselines
 
     project, config = _config_with(args, "baseline")
     reports = stage_baselines(project, config, print)

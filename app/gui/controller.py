@@ -3,7 +3,7 @@
 Threads (STYLE #8): widgets are touched only on the main thread. Work runs on four workers:
 
 - ``proxy``: garment loading and proxy derivation (slider changes coalesce: the last wins);
-- ``playback``: every call into :class:`training.playback.Playback` (it is not thread-safe):
+- ``playback``: every call into :class:`pipeline.playback.Playback` (it is not thread-safe):
   loading, motions, live neural renders (coalesced: the newest camera/frame wins), exports;
 - ``jobs``: pipeline stages (simulation, data set, training), fine-tuning; cancellable;
 - ``plots``: loss-curve and preview pictures of a running job.
@@ -635,7 +635,7 @@ class Studio:
             self.show_error(InputError("open a project first (Motion tab)"))
             return
         from core.project import Project
-        from training.pipeline import project_config
+        from pipeline.config import project_config
 
         project = Project(self.project)
         s = self.settings
@@ -752,7 +752,7 @@ class Studio:
         def job():
             import torch
 
-            from training.playback import Playback
+            from pipeline.playback import Playback
 
             torch.set_num_threads(1)
             device = "cuda" if torch.cuda.is_available() else "cpu"
@@ -788,7 +788,7 @@ class Studio:
         self.view.status.text = f"loading motion {Path(name).name} ..."
 
         def job():
-            from training.playback import load_motion_for
+            from pipeline.playback import load_motion_for
 
             pb = self.playback
             is_kind = name in PROCEDURAL and not pb.project.path("motions", f"{name}.bvh").is_file()
@@ -1074,7 +1074,7 @@ class Studio:
         root = self.project
 
         def run(project, config, log, progress):
-            from training.finetune import finetune_body_shape
+            from pipeline.finetune import finetune_body_shape
 
             return finetune_body_shape(root, shape, name, log=log, progress=False)
 
@@ -1087,7 +1087,8 @@ class Studio:
         root, path = self.project, Path(image_path)
 
         def run(project, config, log, progress):
-            from training.finetune import finetune_background_images, load_image
+            from core.compositing import load_image
+            from pipeline.finetune import finetune_background_images
 
             result = finetune_background_images(root, [path], path.stem, log=log, progress=False)
             return result, load_image(path)
@@ -1111,7 +1112,7 @@ class Studio:
             self.show_error(InputError("a job is already running: cancel it first"))
             return
         from core.project import Project
-        from training.pipeline import project_config
+        from pipeline.config import project_config
 
         try:
             config = project_config(Project(self.project))
@@ -1182,14 +1183,14 @@ class Studio:
             self.view.job_label.text = f"cancelling {self.job_label} ..."
 
     def _stage_steps(self, label: str) -> int | None:
-        from training import pipeline as pl
+        from pipeline.config import joint2coarse_config, renderer_config
 
         try:
             if label == "joint2coarse":
-                c = pl.joint2coarse_config(self.job_config)
+                c = joint2coarse_config(self.job_config)
                 return c.autoencoder_steps + c.motion_steps + c.finetune_steps
-            if label == "renderer" and hasattr(pl, "renderer_config"):
-                return int(pl.renderer_config(self.job_config).steps)
+            if label == "renderer":
+                return int(renderer_config(self.job_config).steps)
         except Exception:  # noqa: BLE001 - progress is best effort
             return None
         return None
@@ -1285,7 +1286,7 @@ class Studio:
         export label shows progress and time left; :meth:`cancel_export` stops it and leaves
         no file."""
         from core.camera import path_cameras
-        from training.playback import FrameWriter
+        from pipeline.playback import FrameWriter
 
         if not self.num_frames:
             self.show_error(InputError("load a motion of a trained project first"))

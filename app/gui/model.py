@@ -595,28 +595,36 @@ class StageJob:
 
 
 def pipeline_jobs(config, which: str) -> list[StageJob]:
-    """The stage functions of :mod:`training.pipeline` a window button runs, in order.
+    """The stage functions of :mod:`pipeline` a window button runs, in order.
 
     ``which``: ``"simulate"`` (every motion's proxy, then the training motion's target),
     ``"dataset"``, ``"joint2coarse"``, ``"renderer"`` (when the pipeline has
     ``stage_renderer``) or ``"all"`` (motions, garment, proxy and everything above).
     """
-    from training import pipeline as pl
+    # deferred: the stages load torch and open3d; the window opens before they are needed
+    from pipeline.config import available_test_motions
+    from pipeline.stages.dataset import stage_dataset
+    from pipeline.stages.garment import stage_garment
+    from pipeline.stages.joint2coarse import stage_joint2coarse
+    from pipeline.stages.motions import stage_motions
+    from pipeline.stages.proxy import stage_proxy
+    from pipeline.stages.renderer import stage_renderer
+    from pipeline.stages.simulate import stage_simulate
 
-    tests = [m.name for m in pl.available_test_motions(config)]
+    tests = [m.name for m in available_test_motions(config)]
     train = config.train_motion.name
     jobs: dict[str, list[StageJob]] = {}
 
     def sim(m: str, w: str) -> StageJob:
         return StageJob(
             f"simulate {m} ({w})",
-            lambda p, c, log, prog: pl.stage_simulate(p, c, m, w, log, prog),
+            lambda p, c, log, prog: stage_simulate(p, c, m, w, log, prog),
         )
 
     jobs["setup"] = [
-        StageJob("motions", lambda p, c, log, prog: pl.stage_motions(p, c, log)),
-        StageJob("garment", lambda p, c, log, prog: pl.stage_garment(p, c, log)),
-        StageJob("proxy", lambda p, c, log, prog: pl.stage_proxy(p, c, log)),
+        StageJob("motions", lambda p, c, log, prog: stage_motions(p, c, log)),
+        StageJob("garment", lambda p, c, log, prog: stage_garment(p, c, log)),
+        StageJob("proxy", lambda p, c, log, prog: stage_proxy(p, c, log)),
     ]
     sims = [sim(train, "proxy")]
     if config.simulate_target:
@@ -624,19 +632,16 @@ def pipeline_jobs(config, which: str) -> list[StageJob]:
     sims += [sim(name, "proxy") for name in tests]
     jobs["simulate"] = sims
     jobs["dataset"] = [
-        StageJob("dataset", lambda p, c, log, prog: pl.stage_dataset(p, c, log)),
+        StageJob("dataset", lambda p, c, log, prog: stage_dataset(p, c, log)),
     ]
     jobs["joint2coarse"] = [
         StageJob(
-            "joint2coarse", lambda p, c, log, prog: pl.stage_joint2coarse(p, c, log, progress=False)
+            "joint2coarse", lambda p, c, log, prog: stage_joint2coarse(p, c, log, progress=False)
         ),
     ]
-    if hasattr(pl, "stage_renderer"):
-        jobs["renderer"] = [
-            StageJob("renderer", lambda p, c, log, prog: pl.stage_renderer(p, c, log, prog)),
-        ]
-    else:
-        jobs["renderer"] = []
+    jobs["renderer"] = [
+        StageJob("renderer", lambda p, c, log, prog: stage_renderer(p, c, log, prog)),
+    ]
     if which == "all":
         return [
             *jobs["setup"],

@@ -18,7 +18,7 @@ renderer outputs the final image.
   the ground-truth pairs real), as :mod:`training.renderer.train` trains our renderer. The
   perceptual loss is on only with a VGG19 weights file (``vgg_path``). In a project the
   weights are the ones our renderer trains with, overrides included
-  (:func:`training.pipeline.baseline_config`).
+  (:func:`pipeline.config.baseline_config`).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ with no open3d, warp or newton), from a bundle file (:mod:`training.torchpath.bu
 - the path: :class:`TorchPlayer` (Joint2Coarse -> raster -> features -> network -> composite).
 
 Importing this package imports torch, numpy and the numpy-only parts of ``core`` and
-``training``; writing a bundle (:mod:`training.torchpath.export`) needs the whole studio and is
+``training``; writing a bundle (:mod:`pipeline.torch_export`) needs the whole studio and is
 not imported here.
 """
 

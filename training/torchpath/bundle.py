@@ -1,6 +1,6 @@
 """A trained project in one file that torch alone can read: what a GPU machine needs to render.
 
-:func:`training.torchpath.export.export_bundle` writes it from a project (where the whole
+:func:`pipeline.torch_export.export_bundle` writes it from a project (where the whole
 studio is installed); :func:`load_bundle` reads it with ``torch.load(weights_only=True)``. The
 file holds tensors, numbers, strings, lists and dicts only::
 

@@ -23,7 +23,7 @@ Joint2Coarse is the bundle's model: the paper's network, or ours
 (:class:`~training.joint2coarse.body_model.BodyResidualNet`, the numpy model's own prediction
 functions run on torch tensors; on CUDA its ``torch.linalg.svd`` makes the host wait for the
 device once per call, reading nothing back). Streaming keeps frame t-1's latent, like the numpy
-path. Pixels match :class:`training.playback.Playback` up to the rasterizers' ties (see the
+path. Pixels match :class:`pipeline.playback.Playback` up to the rasterizers' ties (see the
 tests and ``benchmarks/torchpath_match.py``).
 """
 
@@ -189,7 +189,7 @@ class TorchPlayer:
         elevation_deg: float = 10.0,
         distance_scale: float = 1.075,
     ) -> Camera:
-        """The camera :meth:`training.playback.Playback.default_camera` makes
+        """The camera :meth:`pipeline.playback.Playback.default_camera` makes
         (:func:`core.camera.follow_camera` at frame t's root; host numbers)."""
         rig = self.rig
         return follow_camera(

@@ -24,7 +24,8 @@ from core.errors import InputError
 from core.fileio import write_json
 from core.motion.motion import Motion
 from core.project import Project
-from training.pipeline import Log, MotionSpec, PipelineConfig, _make_motion, _quiet, sim_config
+from pipeline.config import Log, MotionSpec, PipelineConfig, quiet, sim_config
+from pipeline.stages.motions import motion_from_spec
 
 #: Frames of a procedural kind when ``--frames`` is not given (5 s at 30 fps).
 DEFAULT_KIND_FRAMES = 150
@@ -71,7 +72,7 @@ def eval_motion(
         raise InputError(f"--start-s must be >= 0 seconds, got {start_s}", motion)
     if motion in PROCEDURAL_KINDS:
         spec = MotionSpec(motion, motion, frames or DEFAULT_KIND_FRAMES, seed=seed)
-        return _make_motion(spec, config)
+        return motion_from_spec(spec, config)
     path = Path(motion)
     if not path.is_file():
         raise InputError(
@@ -83,7 +84,7 @@ def eval_motion(
         if frames < 1:
             raise InputError(f"the clip is shorter than --start-s {start_s:g} s", path)
     spec = MotionSpec(path.stem, "file", frames, path=str(path), start_s=start_s)
-    return _make_motion(spec, config)
+    return motion_from_spec(spec, config)
 
 
 def simulation_key(positions: np.ndarray, faces: np.ndarray, motion: Motion, params: dict) -> str:
@@ -103,7 +104,7 @@ def simulate_cached(
     project: Project,
     config: PipelineConfig,
     motion: Motion,
-    log: Log = _quiet,
+    log: Log = quiet,
     cache_root: Path | None = None,
 ):
     """The proxy simulated under ``motion`` with the project's settings, from the scratch cache
@@ -144,7 +145,7 @@ def evaluate_on_motion(
     config: PipelineConfig,
     motion: Motion,
     source: str,
-    log: Log = _quiet,
+    log: Log = quiet,
     cache_root: Path | None = None,
 ) -> dict:
     """Joint2Coarse against the simulation on one motion (already on the mannequin).

@@ -1,5 +1,5 @@
 """Write a project's torch bundle (:mod:`training.torchpath.bundle`): runs where the whole studio
-is installed (it reads the project with :class:`training.playback.Playback`)."""
+is installed (it reads the project with :class:`pipeline.playback.Playback`)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from core.errors import InputError
 from core.features import FeatureConfig
 from core.fileio import atomic_path
 from core.skeleton import forward_kinematics, skinning_transforms
+from pipeline.playback import Playback, load_motion_for
+from pipeline.stages.dataset import dataset_rig
 from training.joint2coarse import joint2coarse_inputs
 from training.joint2coarse.model import MODEL_FORMAT
-from training.pipeline import dataset_rig
-from training.playback import Playback, load_motion_for
 from training.renderer.train import load_model
 from training.torchpath.bundle import BUNDLE_FORMAT
 
@@ -57,7 +57,7 @@ def make_bundle(
     joint2coarse: str | os.PathLike | None = None,
 ) -> dict:
     """The project's models, proxy, body and the given motions (default: its training motion;
-    any of :func:`training.playback.load_motion_for`: BVH files, project motions, procedural
+    any of :func:`pipeline.playback.load_motion_for`: BVH files, project motions, procedural
     kinds), the first ``frames`` of each when given. ``joint2coarse``: another Joint2Coarse
     model file than the project's (``paper`` or ``ours``, e.g. ``joint2coarse/compare-ours``)."""
     pb = Playback(project, joint2coarse_path=joint2coarse)

@@ -31,7 +31,7 @@ from core.errors import InputError
 
 #: Frames of a procedural motion when no count is given.
 DEFAULT_PROCEDURAL_FRAMES = 90
-#: Where a project's renderer model lives (``training.pipeline.stage_renderer`` writes it).
+#: Where a project's renderer model lives (``pipeline.stages.renderer.stage_renderer`` writes it).
 RENDERER_MODEL = ("renderer", "renderer.pt")
 #: Where a project's Joint2Coarse model lives.
 JOINT2COARSE_MODEL = ("joint2coarse", "joint2coarse.pt")
@@ -66,7 +66,8 @@ def load_motion_for(
     from core.motion.procedural import PROCEDURAL_KINDS, make_motion
     from core.motion.retarget import retarget
     from core.project import Project
-    from training.pipeline import load_project_motion, project_config
+    from pipeline.config import project_config
+    from pipeline.stages.motions import load_project_motion
 
     project = project if isinstance(project, Project) else Project(project)
     config = project_config(project)
@@ -113,7 +114,7 @@ class Playback:
 
     Parameters
     ----------
-    project_root : the project folder (``dng demo`` layout, see :mod:`training.pipeline`)
+    project_root : the project folder (``dng demo`` layout, see :mod:`pipeline`)
     device : torch device of the neural renderer ("cpu", "cuda"); Joint2Coarse runs on CPU
     renderer_path : renderer model file (default ``renderer/renderer.pt``; a fine-tuned one,
         e.g. ``finetune/background-NAME/renderer.pt``, can be given)
@@ -122,7 +123,7 @@ class Playback:
 
     Attributes
     ----------
-    project : core.project.Project; config : training.pipeline.PipelineConfig
+    project : core.project.Project; config : pipeline.config.PipelineConfig
     body : core.body.mannequin.Body
     body_faces : (Fb, 3) int64
     proxy_faces : (Fp, 3) int64 over the UV-split proxy vertices
@@ -145,8 +146,8 @@ class Playback:
         from core.mesh import load_mesh
         from core.project import Project
         from core.shading import ShadingConfig
+        from pipeline.config import project_config
         from training.joint2coarse import load_model
-        from training.pipeline import project_config
 
         root = Path(project_root)
         if not root.is_dir():
@@ -317,12 +318,12 @@ class Playback:
         """A camera that frames the garment like the data set's cameras, following the root.
 
         Field of view, look-at height and distance come from
-        :func:`training.pipeline.dataset_rig` (distance: ``distance_scale`` times its nearest
+        :func:`pipeline.stages.dataset.dataset_rig` (distance: ``distance_scale`` times its nearest
         radius, the middle of its range by default); azimuth 0 looks at the front (+Z);
         the target moves with the root's horizontal position at frame t.
         """
         from core.camera import intrinsics_from_fov, look_at, orbit_eye
-        from training.pipeline import dataset_rig
+        from pipeline.stages.dataset import dataset_rig
 
         t = self._frame(t)
         lo, hi = self.garment_box()
@@ -358,7 +359,7 @@ class Playback:
         image = render_background(body, camera, self.shading)
         if self.backdrop is None:
             return image
-        from training.finetune import fit_image, recomposite, surface_coverage
+        from core.compositing import fit_image, recomposite, surface_coverage
 
         coverage = surface_coverage(body.vertices, body.faces, camera, self.shading.supersample)
         backdrop = fit_image(self.backdrop, camera.width, camera.height)

@@ -30,112 +30,21 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from core.compositing import fit_image, load_image, recomposite, surface_coverage
 from core.errors import InputError
 from core.fileio import atomic_path, write_json
+from pipeline.config import Log, quiet
 
 #: Sub-folder of a project that holds fine-tuned models.
 FINETUNE_DIR = "finetune"
 #: Parent folders copied into a body sub-project unchanged (the UV atlas must not change).
 COPIED_STAGES = ("garment", "proxy")
-
-Log = Callable[[str], None]
-
-
-def _quiet(_: str) -> None:
-    pass
-
-
-# ------------------------------------------------------------------------------ compositing
-
-
-def surface_coverage(
-    vertices: np.ndarray, faces: np.ndarray, camera, supersample: int
-) -> np.ndarray:
-    """Fraction of each pixel's ``k x k`` ray samples that hit the mesh: (H, W) float32.
-
-    Parameters
-    ----------
-    vertices : (V, 3) float; faces : (F, 3) int
-    camera : core.camera.Camera
-    supersample : k, as in :class:`core.shading.ShadingConfig` (must match the render's)
-    """
-    from core.camera import resize_camera
-    from core.raster import MeshScene, RasterConfig
-
-    k = int(supersample)
-    cam = resize_camera(camera, k * camera.width, k * camera.height)
-    frags = MeshScene(vertices, faces).rasterize(cam, RasterConfig())
-    hit = (frags.face_id >= 0).astype(np.float32)
-    return hit.reshape(camera.height, k, camera.width, k).mean(axis=(1, 3), dtype=np.float32)
-
-
-def recomposite(
-    image: np.ndarray,
-    coverage: np.ndarray,
-    clear: Sequence[float],
-    backdrop: np.ndarray,
-) -> np.ndarray:
-    """Swap the clear colour behind a render for a backdrop: (H, W, 3) uint8.
-
-    Parameters
-    ----------
-    image : (H, W, 3) uint8, sRGB, rendered over the flat colour ``clear``
-    coverage : (H, W) float in [0, 1], surface coverage of each pixel (:func:`surface_coverage`)
-    clear : 3 floats, sRGB in [0, 1] (``ShadingConfig.background``)
-    backdrop : (H, W, 3) uint8, sRGB
-
-    Works in linear RGB, where the render averaged its samples; pixels with no coverage are
-    the backdrop exactly.
-    """
-    from core.shading import linear_to_srgb, srgb_to_linear, to_uint8
-
-    image = np.asarray(image)
-    backdrop = np.asarray(backdrop)
-    if image.shape != backdrop.shape or image.ndim != 3 or image.shape[2] != 3:
-        raise InputError(f"image {image.shape} and backdrop {backdrop.shape} must be (H, W, 3)")
-    c = np.clip(np.asarray(coverage, np.float32), 0.0, 1.0)[..., None]
-    lin = srgb_to_linear(image.astype(np.float32) / 255)
-    back = srgb_to_linear(backdrop.astype(np.float32) / 255)
-    lin = lin + (1.0 - c) * (back - srgb_to_linear(np.asarray(clear, np.float32)))
-    out = to_uint8(linear_to_srgb(lin))
-    empty = c[..., 0] <= 0
-    out[empty] = backdrop[empty]
-    return out
-
-
-def fit_image(image: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Scale ``image`` (H, W, 3) uint8 to cover ``width x height`` and crop the centre."""
-    from PIL import Image
-
-    h, w = image.shape[:2]
-    if (w, h) == (width, height):
-        return image
-    s = max(width / w, height / h)
-    nw, nh = max(width, round(w * s)), max(height, round(h * s))
-    big = np.asarray(Image.fromarray(image).resize((nw, nh), Image.Resampling.LANCZOS))
-    x0, y0 = (nw - width) // 2, (nh - height) // 2
-    return np.ascontiguousarray(big[y0 : y0 + height, x0 : x0 + width])
-
-
-def load_image(path: str | os.PathLike) -> np.ndarray:
-    """An image file as (H, W, 3) uint8 RGB; InputError naming the file if it is not one."""
-    from PIL import Image, UnidentifiedImageError
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("image file not found", path)
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"))
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise InputError(f"not a readable image ({exc})", path) from None
-
 
 # ------------------------------------------------------------------------------ background
 
@@ -162,7 +71,7 @@ class BackdropDataset:
         from core.project import Project
         from core.shading import ShadingConfig
         from core.sim import load_cache
-        from training.pipeline import project_config
+        from pipeline.config import project_config
 
         if not images:
             raise InputError("background fine-tuning needs at least one image")
@@ -275,7 +184,7 @@ def check_name(name: str) -> str:
 
 def parent_renderer(project_root: str | os.PathLike, renderer_path=None) -> Path:
     """The trained renderer to start from (InputError naming it when missing)."""
-    from training.playback import RENDERER_MODEL
+    from pipeline.playback import RENDERER_MODEL
 
     path = Path(renderer_path) if renderer_path else Path(project_root).joinpath(*RENDERER_MODEL)
     if not path.is_file():
@@ -292,7 +201,7 @@ def finetune_background_images(
     renderer_path: str | os.PathLike | None = None,
     device: str = "cpu",
     progress: bool = True,
-    log: Log = _quiet,
+    log: Log = quiet,
 ) -> FinetuneResult:
     """Fine-tune the project's renderer to the backdrop images (see the module docstring).
 
@@ -342,7 +251,7 @@ def finetune_body_shape(
     joint2coarse: bool = True,
     device: str = "cpu",
     progress: bool = True,
-    log: Log = _quiet,
+    log: Log = quiet,
 ) -> FinetuneResult:
     """Fine-tune the project's renderer to a new body shape (see the module docstring).
 
@@ -357,14 +266,12 @@ def finetune_body_shape(
     Stages already done in the sub-project with the same inputs are reused.
     """
     from core.project import Project
+    from pipeline.config import project_config
+    from pipeline.stages.dataset import stage_dataset
+    from pipeline.stages.joint2coarse import stage_joint2coarse
+    from pipeline.stages.motions import stage_motions
+    from pipeline.stages.simulate import stage_simulate
     from training.dataset import GarmentDataset
-    from training.pipeline import (
-        project_config,
-        stage_dataset,
-        stage_joint2coarse,
-        stage_motions,
-        stage_simulate,
-    )
     from training.renderer.train import finetune_body
 
     root = Path(project_root)

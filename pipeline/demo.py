@@ -10,26 +10,25 @@ from pathlib import Path
 
 from core.fileio import atomic_open, write_json
 from core.project import RECORD_NAME, Project
-from training.pipeline import (
+from pipeline.config import (
     PipelineConfig,
     available_extra_motions,
     available_test_motions,
     available_validation_motions,
     joint2coarse_config,
     renderer_config,
-    stage_ablation,
-    stage_baselines,
-    stage_dataset,
-    stage_eval,
-    stage_garment,
-    stage_joint2coarse,
-    stage_motions,
-    stage_proxy,
-    stage_renderer,
-    stage_simulate,
-    stage_testset,
-    stage_videos,
 )
+from pipeline.stages.ablations import stage_ablation
+from pipeline.stages.baselines import stage_baselines
+from pipeline.stages.dataset import stage_dataset, stage_testset
+from pipeline.stages.evaluate import stage_eval
+from pipeline.stages.garment import stage_garment
+from pipeline.stages.joint2coarse import stage_joint2coarse
+from pipeline.stages.motions import stage_motions
+from pipeline.stages.proxy import stage_proxy
+from pipeline.stages.renderer import stage_renderer
+from pipeline.stages.simulate import stage_simulate
+from pipeline.stages.videos import stage_videos
 
 #: Seconds per unit of work of each stage on the 2-core development machine, from the quick
 #: preset's run (``dng demo --out /tmp/q9``: its ``report.json`` ``stage_seconds`` divided by
@@ -139,7 +138,7 @@ def _sim_bar(desc: str):
 
 def _baselines_worker(root: str, params: dict) -> dict:
     """Child-process entry: train the baselines of a project (one torch thread)."""
-    from training.pipeline import PipelineConfig
+    from pipeline.config import PipelineConfig
 
     def log(message: str) -> None:
         print(f"[baselines]{message}", file=sys.stderr, flush=True)

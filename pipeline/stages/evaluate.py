@@ -1,0 +1,132 @@
+"""Stage ``eval``: every method scored on every test motion from unseen cameras
+(``eval/report.json``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from core.fileio import write_json
+from core.project import Project
+from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
+from pipeline.stages.ablations import ablation_label, ablation_project, check_ablation
+
+
+def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Path, str, Path]]:
+    """The methods ``stage_eval`` scores: name -> (model file, proxy source at test time,
+    project folder whose proxy and test sets it renders).
+
+    ``ours`` renders Joint2Coarse's proxy (no simulation at test time, the method's claim);
+    ``ours (simulated proxy)`` renders the simulated proxy of the same motion, which separates
+    the renderer's error from Joint2Coarse's. Baselines render both proxies too; ablations
+    render Joint2Coarse's.
+    """
+    root = project.root
+    methods = {
+        "ours": (project.path("renderer", "renderer.pt"), "joint2coarse", root),
+        "ours (simulated proxy)": (project.path("renderer", "renderer.pt"), "sim", root),
+    }
+    for kind in config.baselines:
+        methods[kind] = (project.path(f"baselines/{kind}", f"{kind}.pt"), "joint2coarse", root)
+    for kind in config.baselines:  # the renderers alone, on the right geometry
+        model = project.path(f"baselines/{kind}", f"{kind}.pt")
+        methods[f"{kind} (simulated proxy)"] = (model, "sim", root)
+    for name in config.ablations:
+        check_ablation(name)
+        if name == "no-motion":
+            model, data = project.path("ablations/no-motion", "renderer.pt"), root
+        elif name.startswith("views-"):
+            model, data = ablation_project(project, name).path("renderer", "renderer.pt"), root
+        else:
+            sub = ablation_project(project, name)
+            model, data = sub.path("renderer", "renderer.pt"), sub.root
+        methods[ablation_label(name, config)] = (model, "joint2coarse", data)
+    return methods
+
+
+def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> dict:
+    """Score every method on every test motion from unseen cameras: ``eval/report.json`` and
+    ``eval/compare-MOTION.png`` (ground truth and each method on the same frames)."""
+    import torch
+
+    from core.shading import contact_sheet, write_png
+    from training.baselines import load_for_evaluation
+    from training.dataset import GarmentDataset
+    from training.evaluate import EvalConfig, evaluate_motion, fid_scores
+    from training.metrics import FrameMetrics
+
+    tests = [m.name for m in available_test_motions(config)]
+    methods = eval_methods(project, config)
+    eval_cfg = EvalConfig(inception_path=config.inception_path)
+    inputs = [path for path, _, _ in methods.values()]
+    for name in tests:
+        for root in {r for _, _, r in methods.values()}:
+            data = Project(root)
+            inputs += [
+                data.path(f"testset/{name}", "samples.json"),
+                data.path("joint2coarse", f"pred-{name}.npz"),
+                data.path(f"sim/{name}-proxy", "cache.npz"),
+            ]
+    params = {
+        "eval": eval_cfg.to_dict(),
+        "methods": {k: [v[1], str(v[2])] for k, v in methods.items()},
+    }
+
+    def work(out: Path) -> list[str]:
+        torch.set_num_threads(config.torch_threads)
+        models = {name: load_for_evaluation(path) for name, (path, _, _) in methods.items()}
+        totals = {name: FrameMetrics() for name in methods}
+        report: dict = {"methods": {}, "motions": {}, "test_motions": tests}
+        outputs = []
+        for motion in tests:
+            data = {
+                (root, src): GarmentDataset(root, source=src, split=motion)
+                for _, src, root in methods.values()
+            }
+            log(
+                f"  evaluating {motion}: {len(data[(project.root, 'joint2coarse')])} samples x "
+                f"{len(methods)} methods"
+            )
+            results, gt_tiles = evaluate_motion(
+                {
+                    name: (models[name], data[(root, src)])
+                    for name, (_, src, root) in methods.items()
+                },
+                eval_cfg,
+            )
+            report["motions"][motion] = {
+                name: {
+                    "samples": len(data[(methods[name][2], methods[name][1])]),
+                    **r.metrics.summary(),
+                }
+                for name, r in results.items()
+            }
+            for name, r in results.items():
+                for metric, values in r.metrics.values.items():
+                    totals[name].add(metric, values)
+            tiles, labels = [], []
+            for row_name, row in (
+                ("ground truth", gt_tiles),
+                *((n, r.tiles) for n, r in results.items()),
+            ):
+                tiles += row
+                labels += [row_name] * len(row)
+            write_png(
+                out / f"compare-{motion}.png", contact_sheet(tiles, labels, columns=len(gt_tiles))
+            )
+            outputs.append(f"compare-{motion}.png")
+            for name, r in results.items():
+                report["motions"][motion][name].update(fid_scores(r, eval_cfg))
+        for name in methods:
+            report["methods"][name] = totals[name].summary()
+        for suffix in ("", " (simulated proxy)"):
+            ours, dnr = report["methods"][f"ours{suffix}"], report["methods"].get(f"dnr{suffix}")
+            if dnr and dnr["mse"]["mean"]:
+                key = "mse_ratio_ours_to_dnr" + ("_simulated_proxy" if suffix else "")
+                report[key] = ours["mse"]["mean"] / dnr["mse"]["mean"]
+        write_json(out / "report.json", report)
+        return [*outputs, "report.json"]
+
+    project.run_stage("eval", params, inputs, work)
+    import json
+
+    return json.loads(project.path("eval", "report.json").read_text())

@@ -1,0 +1,37 @@
+"""Stage ``garment``: the detailed target garment (``garment/target.obj``)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+from core.project import Project
+from pipeline.config import Log, PipelineConfig, quiet
+
+
+def stage_garment(project: Project, config: PipelineConfig, log: Log = quiet) -> Path:
+    """The detailed target garment: ``garment/target.obj``."""
+    from core.mesh import load_mesh, save_mesh
+
+    builtin = not Path(config.garment).suffix
+    params = {
+        "garment": config.garment,
+        "resolution_mm": config.garment_resolution_mm,
+        "body": asdict(config.body),
+    }
+
+    def work(out: Path) -> list[str]:
+        if builtin:
+            from templates.garments import make_garment
+
+            mesh = make_garment(
+                config.garment, config.garment_resolution_mm, config.body, config.seed
+            )
+        else:
+            mesh, _ = load_mesh(config.garment)
+        save_mesh(out / "target.obj", mesh)
+        log(f"  {config.garment}: {mesh.num_vertices} vertices, {mesh.num_faces} faces")
+        return ["target.obj"]
+
+    project.run_stage("garment", params, [] if builtin else [config.garment], work)
+    return project.path("garment", "target.obj")

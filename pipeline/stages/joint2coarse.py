@@ -1,0 +1,243 @@
+"""Stage ``joint2coarse``: train Joint2Coarse on the train split, choose on validation, report
+the test split, and predict the proxy of every motion (``joint2coarse/``)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputError
+from core.fileio import write_json, write_npz
+from core.project import Project
+from pipeline.config import (
+    Log,
+    PipelineConfig,
+    joint2coarse_config,
+    joint2coarse_splits,
+    quiet,
+    sim_config,
+)
+from pipeline.stages.motions import load_project_motion
+
+
+def stage_joint2coarse(
+    project: Project, config: PipelineConfig, log: Log = quiet, progress: bool = True
+) -> dict:
+    """Train Joint2Coarse on its training split's proxy simulations; evaluate on the validation
+    and test motions.
+
+    Writes the model and loss log (``training.joint2coarse``), ``pred-MOTION.npz`` for the
+    training motion and every validation and test motion, and ``report.json`` with the splits,
+    per-vertex errors against simulation (mean and 95th percentile in mm) per validation and
+    test motion, body penetration of the predictions and of the simulation, and inference time
+    per frame.
+    """
+    import torch
+
+    from core.mesh import load_mesh
+    from core.sim import load_cache
+    from training.joint2coarse import (
+        Joint2CoarseClip,
+        joint2coarse_inputs,
+        predict_proxy,
+        train_joint2coarse,
+    )
+    from training.joint2coarse.body_model import body_rig
+
+    torch.set_num_threads(config.torch_threads)
+    cfg = joint2coarse_config(config)
+    splits = joint2coarse_splits(config)
+    train, extra = splits["train"][0], splits["train"][1:]
+    vals, tests = splits["validation"], splits["test"]
+    names = [train, *extra, *vals, *tests]
+    if len(set(names)) != len(names):
+        raise InputError(f"Joint2Coarse's train, validation and test motions {names} must differ")
+    caches = {n: project.path(f"sim/{n}-proxy", "cache.npz") for n in names}
+    motions = [project.path("motions", f"{n}.bvh") for n in names]
+    proxy_file = project.path("proxy", "positions.obj")
+    params = {"joint2coarse": cfg.to_dict(), "train": train, "tests": tests}
+    if config.joint2coarse_compare:
+        params["compare"] = list(config.joint2coarse_compare)
+    if extra:
+        params["extra"] = extra
+    if vals:
+        params["validation"] = vals
+    inputs = [*caches.values(), *motions]
+    if cfg.model == "ours":
+        inputs.append(proxy_file)
+
+    def work(out: Path) -> list[str]:
+        clips = []
+        for name in (train, *extra):
+            joints, root_rot = joint2coarse_inputs(load_project_motion(project, name))
+            positions = load_cache(caches[name]).positions
+            clips.append(Joint2CoarseClip(joints, root_rot, positions, name=name))
+        joints, root_rot = clips[0].joints, clips[0].root_rotations
+        rig = None
+        if cfg.model == "ours":
+            rig = body_rig(config.body, load_mesh(proxy_file)[0].vertices, cfg.skin_fade)
+        result = train_joint2coarse(clips, out, cfg, progress=progress, rig=rig)
+        report = {
+            "config": cfg.to_dict(),
+            "model": cfg.model,
+            "splits": splits,
+            "train_motion": train,
+            "extra_train_motions": extra,
+            "validation_error_mm": {k: asdict(v) for k, v in result.stage_errors.items()},
+            "validation_mean_shape_baseline_mm": asdict(result.baseline)
+            if result.baseline
+            else None,
+            "validation_motions": {},
+            "motions": {},
+            "compare": {},
+        }
+        outputs = [result.model_path.name, result.log_path.name]
+        # The training motion's prediction: the proxy the renderer sees at test time.
+        write_npz(out / f"pred-{train}.npz", positions=predict_proxy(result.net, joints, root_rot))
+        outputs.append(f"pred-{train}.npz")
+        for split, key in ((vals, "validation_motions"), (tests, "motions")):
+            for name in split:
+                report[key][name] = _evaluate_joint2coarse(
+                    project, config, result.net, name, load_cache(caches[name]), out,
+                    picture=key == "motions",
+                )  # fmt: skip
+                outputs.append(f"pred-{name}.npz")
+                if key == "motions":
+                    outputs.append(f"compare-{name}.png")
+                e = report[key][name]["error_mm"]
+                log(
+                    f"  {name}: mean {e['mean_mm']:.1f} mm, p95 {e['p95_mm']:.1f} mm "
+                    f"({'validation' if key != 'motions' else 'test'} motion)"
+                )
+        for other in config.joint2coarse_compare:
+            if other == cfg.model:
+                continue
+            log(f"  the {other} model beside it, trained on the same splits")
+            other_cfg = replace(cfg, model=other)
+            other_rig = rig
+            if other == "ours" and rig is None:
+                rest = load_mesh(proxy_file)[0].vertices
+                other_rig = body_rig(config.body, rest, other_cfg.skin_fade)
+            folder = out / f"compare-{other}"
+            trained = train_joint2coarse(clips, folder, other_cfg, progress=progress, rig=other_rig)
+            report["compare"][other] = _compare_errors(project, trained.net, caches, vals, tests)
+            outputs.append(f"compare-{other}/{trained.model_path.name}")
+        write_json(out / "report.json", report)
+        return [*outputs, "report.json"]
+
+    if "ours" in config.joint2coarse_compare and proxy_file not in inputs:
+        inputs.append(proxy_file)
+    resumable = ["joint2coarse_train.pt"]
+    resumable += [f"compare-{m}/joint2coarse_train.pt" for m in config.joint2coarse_compare]
+    project.run_stage("joint2coarse", params, inputs, work, resumable=resumable)
+    import json
+
+    return json.loads(project.path("joint2coarse", "report.json").read_text())
+
+
+def _compare_errors(project: Project, net, caches: dict, vals: list, tests: list) -> dict:
+    """A comparison model's vertex errors (mm) on the validation and test motions."""
+    from core.sim import load_cache
+    from training.joint2coarse import joint2coarse_inputs, predict_proxy, vertex_errors
+
+    out: dict[str, dict] = {"validation_motions": {}, "motions": {}}
+    for split, key in ((vals, "validation_motions"), (tests, "motions")):
+        for name in split:
+            joints, root_rot = joint2coarse_inputs(load_project_motion(project, name))
+            pred = predict_proxy(net, joints, root_rot)
+            error = vertex_errors(pred, load_cache(caches[name]).positions)
+            out[key][name] = {"error_mm": asdict(error)}
+    return out
+
+
+def _evaluate_joint2coarse(
+    project, config, net, name, reference, out: Path, picture: bool = True
+) -> dict:
+    """Predict a test motion; compare with its simulation, with and without the push-out
+    against the body (the capsules the simulation collides with); time the inference; write a
+    side-by-side picture. Penetration is reported for the prediction and the simulation alike."""
+    from core.body.mannequin import make_body
+    from core.mesh import load_mesh
+    from training.joint2coarse import (
+        Joint2CoarseStream,
+        joint2coarse_inputs,
+        predict_proxy,
+        reconstruct_proxy,
+        vertex_errors,
+    )
+    from training.joint2coarse.collision import penetration_summary, simulation_colliders
+
+    motion = load_project_motion(project, name)
+    joints, root_rot = joint2coarse_inputs(motion)
+    start = time.perf_counter()
+    pred = predict_proxy(net, joints, root_rot)
+    ms = 1e3 * (time.perf_counter() - start) / len(pred)
+    stream = Joint2CoarseStream(net)  # one frame at a time, as the GUI plays a motion
+    frame_ms = []
+    for t in range(len(joints)):
+        start = time.perf_counter()
+        stream.push(joints[t], root_rot[t])
+        frame_ms.append(1e3 * (time.perf_counter() - start))
+    body = make_body(config.body)
+    top = float(load_mesh(project.path("proxy", "positions.obj"))[0].vertices[:, 1].max())
+    capsules, radii = simulation_colliders(
+        config.body, motion, top, sim_config(config).arm_colliders
+    )
+    pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
+    write_npz(out / f"pred-{name}.npz", positions=pred)
+
+    def measured(positions: np.ndarray) -> dict:
+        pen = penetration_summary(positions, capsules, radii)
+        return {
+            "error_mm": asdict(vertex_errors(positions, reference.positions)),
+            "penetration_mm": {
+                "mean": pen["mean_mm"],
+                "max": pen["max_mm"],
+                "fraction": pen["inside_percent"] / 100.0,
+            },
+        }
+
+    if picture:
+        _side_by_side(out / f"compare-{name}.png", reference, pred, body, motion)
+    extra = {}
+    if hasattr(net, "shape_encoder"):  # the paper's model
+        # What the decoder reaches from the shapes themselves, encoded (no motion involved).
+        rebuilt = reconstruct_proxy(net, reference.positions, joints, root_rot)
+        extra["autoencoder_error_mm"] = asdict(vertex_errors(rebuilt, reference.positions))
+    return {
+        "frames": int(len(pred)),
+        **measured(pred),
+        "with_push_out": measured(pushed),
+        "simulation_penetration_mm": measured(reference.positions)["penetration_mm"],
+        **extra,
+        "batch_ms_per_frame": ms,
+        "streaming_ms_per_frame": {
+            "median": float(np.median(frame_ms)),
+            "p95": float(np.percentile(frame_ms, 95)),
+        },
+    }
+
+
+def _side_by_side(path: Path, reference, predicted: np.ndarray, body, motion) -> None:
+    """Simulated proxy above, Joint2Coarse's prediction below, at five frames of the clip."""
+    from core.body.skinning import pose_body
+    from core.camera import make_camera
+    from core.mesh import Mesh
+    from core.shading import contact_sheet, render_views, write_png
+
+    frames = np.linspace(0, len(predicted) - 1, 5).round().astype(int)
+    posed = pose_body(body, motion)
+    tiles, labels = [], []
+    for label, cache in (("simulation", reference.positions), ("Joint2Coarse", predicted)):
+        for f in frames:
+            centre = motion.root_positions[f].astype(np.float64)
+            eye = centre + np.array([0.0, 0.1, 2.6])
+            cam = make_camera(eye, centre + np.array([0.0, -0.2, 0.0]), width=192, height=192)
+            garment = Mesh(np.asarray(cache[f], np.float32), reference.faces)
+            (gt,) = render_views(garment, Mesh(posed[f], body.faces), [cam])
+            tiles.append(gt.image)
+            labels.append(f"{label} f{f}")
+    write_png(path, contact_sheet(tiles, labels, columns=len(frames)))

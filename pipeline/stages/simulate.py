@@ -1,0 +1,165 @@
+"""Stage ``simulate``: the proxy's (and the target's) motion on each clip (``sim/NAME-WHICH/``):
+simulated as cloth, or the target embedded in the proxy's simulation; with contact sheets."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import InputError
+from core.fileio import write_json
+from core.project import Project
+from pipeline.config import Log, PipelineConfig, quiet, sim_config
+from pipeline.stages.motions import load_project_motion
+
+
+def stage_simulate(
+    project: Project,
+    config: PipelineConfig,
+    motion_name: str,
+    which: str,
+    log: Log = quiet,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Simulate the proxy (``which="proxy"``) or the target under a motion of the project.
+
+    The target is simulated, or embedded in the proxy's simulation of the same motion, as
+    ``config.target_mode`` says. Writes ``sim/MOTION-WHICH/cache.npz`` and ``report.json``;
+    returns the cache's path.
+    """
+    from core.mesh import load_mesh
+    from core.sim import save_cache
+    from core.sim.simulate import simulate
+
+    if which not in ("proxy", "target"):
+        raise InputError(f"which must be 'proxy' or 'target', got {which!r}")
+    if config.target_mode not in ("simulate", "embed"):
+        raise InputError(f"target_mode must be 'simulate' or 'embed', got {config.target_mode!r}")
+    if which == "target" and config.target_mode == "embed":
+        return _embed_target(project, config, motion_name, log)
+    garment = (
+        project.path("proxy", "positions.obj")
+        if which == "proxy"
+        else project.path("garment", "target.obj")
+    )
+    motion_file = project.path("motions", f"{motion_name}.bvh")
+    sim_cfg = sim_config(config)
+    params = {"sim": asdict(sim_cfg), "body": asdict(config.body), "which": which}
+    stage = f"sim/{motion_name}-{which}"
+
+    def work(out: Path) -> list[str]:
+        mesh, _ = load_mesh(garment)
+        motion = load_project_motion(project, motion_name)
+        cache, report = simulate(
+            mesh, motion, config.body, sim_cfg, path=garment, progress=progress
+        )
+        save_cache(out / "cache.npz", cache)
+        write_json(out / "report.json", asdict(report))
+        log(
+            f"  {motion_name}/{which}: {cache.num_frames} frames x {cache.num_vertices} vertices, "
+            f"{report.ms_per_frame:.0f} ms/frame, penetration {report.penetration_mean_mm:.2f} mm"
+        )
+        return ["cache.npz", "report.json"]
+
+    project.run_stage(stage, params, [garment, motion_file], work)
+    return project.path(stage, "cache.npz")
+
+
+def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
+    """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
+    simulation: edge stretch and compression against the rest garment, tears, penetration into
+    the body colliders; ``sheet.png`` shows the proxy and the target on the body."""
+    from core.body.shape import mannequin_skeleton
+    from core.mesh import load_mesh
+    from core.sim import SimCache, load_cache, save_cache
+    from core.body.colliders import body_capsules, penetration_depths, pose_capsules
+    from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, drive, embed, strain_stats
+    from core.skeleton import forward_kinematics, skinning_transforms
+
+    target_file = project.path("garment", "target.obj")
+    proxy_file = project.path("proxy", "positions.obj")
+    proxy_cache = project.path(f"sim/{motion_name}-proxy", "cache.npz")
+    stage = f"sim/{motion_name}-target"
+    params = {
+        "mode": "embed",
+        "method": "smoothed-binding-deformation",
+        "smoothing_m": SMOOTHING_M,
+        "frame_smoothing_m": FRAME_SMOOTHING_M,
+        "body": asdict(config.body),
+    }
+
+    def work(out: Path) -> list[str]:
+        target, _ = load_mesh(target_file)
+        proxy, _ = load_mesh(proxy_file)
+        cache = load_cache(proxy_cache)
+        start = time.perf_counter()
+        embedding = embed(target.vertices, proxy.vertices, proxy.faces, target_faces=target.faces)
+        positions = drive(embedding, cache.positions)
+        seconds = time.perf_counter() - start
+        strain = strain_stats(positions, target.vertices, target.faces)
+        motion = load_project_motion(project, motion_name)
+        skeleton = mannequin_skeleton(config.body)
+        pos, rot = forward_kinematics(skeleton, motion.rotations, motion.root_positions)
+        capsules = body_capsules(skeleton, config.body)
+        ends = pose_capsules(capsules, skinning_transforms(skeleton, pos, rot))
+        depth = penetration_depths(positions, ends, capsules.radii)
+        params_out = {**cache.params, "target_mode": "embed", "proxy_cache": str(proxy_cache)}
+        save_cache(out / "cache.npz", SimCache(positions, target.faces, cache.fps, params_out))
+        rows = [("proxy", cache.positions, cache.faces), ("target", positions, target.faces)]
+        _garment_sheet(out / "sheet.png", rows, config.body, motion)
+        report = {
+            "mode": "embed",
+            "frames": int(len(positions)),
+            "vertices": int(target.num_vertices),
+            "ms_per_frame": 1e3 * seconds / len(positions),
+            "strain_max": strain.stretch_max,
+            "strain_p99": strain.stretch_p99,
+            "compression_max": strain.compression_max,
+            "compression_p99": strain.compression_p99,
+            "torn_edges": strain.torn_edges,
+            "penetration_mean_mm": float(depth.mean() * 1e3),
+            "penetration_max_mm": float(depth.max() * 1e3),
+            "penetrating_fraction": float((depth > 0).mean()),
+            "finite": bool(np.isfinite(positions).all()),
+            "sheet": "sheet.png",
+        }
+        write_json(out / "report.json", report)
+        log(
+            f"  {motion_name}/target (embedded in the proxy): {report['frames']} frames x "
+            f"{report['vertices']} vertices, {report['ms_per_frame']:.1f} ms/frame, stretch max "
+            f"{strain.stretch_max:.3f} p99 {strain.stretch_p99:.3f}, "
+            f"penetration {report['penetration_mean_mm']:.2f} mm"
+        )
+        return ["cache.npz", "report.json", "sheet.png"]
+
+    project.run_stage(stage, params, [target_file, proxy_file, proxy_cache], work)
+    return project.path(stage, "cache.npz")
+
+
+def _garment_sheet(path: Path, rows, shape, motion, frames: int = 5) -> None:
+    """A contact sheet: one row per garment ``rows`` [(label, positions (T, V, 3), faces
+    (F, 3))] on the posed mannequin, at ``frames`` frames spread over the clip (front view)."""
+    from core.body.mannequin import make_body
+    from core.body.skinning import pose_body
+    from core.camera import make_camera
+    from core.mesh import Mesh
+    from core.shading import contact_sheet, render_views, write_png
+
+    body = make_body(shape)
+    picked = np.linspace(0, len(rows[0][1]) - 1, frames).round().astype(int)
+    posed = pose_body(body, motion)
+    tiles, labels = [], []
+    for label, positions, faces in rows:
+        for f in picked:
+            centre = motion.root_positions[f].astype(np.float64)
+            eye = centre + np.array([0.0, 0.1, 2.6])
+            cam = make_camera(eye, centre + np.array([0.0, -0.2, 0.0]), width=192, height=192)
+            garment = Mesh(np.asarray(positions[f], np.float32), np.asarray(faces, np.int64))
+            (view,) = render_views(garment, Mesh(posed[f], body.faces), [cam])
+            tiles.append(view.image)
+            labels.append(f"{label} f{f}")
+    write_png(path, contact_sheet(tiles, labels, columns=len(picked)))
