@@ -76,8 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, OSError) as exc:
         print(f"feature_interpolation: error: {exc}", file=sys.stderr)
         return 2
-    frames = np.linspace(max(DEFAULT_FRAME_OFFSETS), min(len(joints), len(cache.positions)) - 1,
-                         args.frames).astype(int)
+    frames = np.linspace(
+        max(DEFAULT_FRAME_OFFSETS), min(len(joints), len(cache.positions)) - 1, args.frames
+    ).astype(int)
     errs, rels, pixels = [], [], 0
     start = time.perf_counter()
     for t in frames:
@@ -94,22 +95,36 @@ def main(argv: list[str] | None = None) -> int:
             pixels += len(r["abs"])
     e, q = np.concatenate(errs), np.concatenate(rels)
     out = {
-        "project": str(root), "motion": args.motion, "size": args.size,
-        "frames": [int(t) for t in frames], "views": args.views, "garment_pixels": pixels,
-        "vertices": int(cache.positions.shape[1]), "faces": int(len(cache.faces)),
-        "abs_mean": float(e.mean()), "abs_p99": float(np.percentile(e, 99)),
-        "abs_max": float(e.max()), "rel_mean": float(q.mean()),
-        "rel_p99": float(np.percentile(q, 99)), "seconds": time.perf_counter() - start,
+        "project": str(root),
+        "motion": args.motion,
+        "size": args.size,
+        "frames": [int(t) for t in frames],
+        "views": args.views,
+        "garment_pixels": pixels,
+        "vertices": int(cache.positions.shape[1]),
+        "faces": int(len(cache.faces)),
+        "abs_mean": float(e.mean()),
+        "abs_p99": float(np.percentile(e, 99)),
+        "abs_max": float(e.max()),
+        "rel_mean": float(q.mean()),
+        "rel_p99": float(np.percentile(q, 99)),
+        "seconds": time.perf_counter() - start,
     }
     if args.json:
         print(json.dumps(out, indent=1))
     else:
-        print(f"{args.motion}: {out['vertices']} vertices, {pixels} garment pixels "
-              f"({len(frames)} frames x {args.views} views at {args.size} px), sigma {args.sigma}")
-        print(f"  |interpolated - exact|: mean {out['abs_mean']:.2e}  p99 {out['abs_p99']:.2e}  "
-              f"max {out['abs_max']:.2e}  (features in [0, 1])")
-        print(f"  relative to the pixel's largest channel: mean {out['rel_mean']:.2e}  "
-              f"p99 {out['rel_p99']:.2e}")
+        print(
+            f"{args.motion}: {out['vertices']} vertices, {pixels} garment pixels "
+            f"({len(frames)} frames x {args.views} views at {args.size} px), sigma {args.sigma}"
+        )
+        print(
+            f"  |interpolated - exact|: mean {out['abs_mean']:.2e}  p99 {out['abs_p99']:.2e}  "
+            f"max {out['abs_max']:.2e}  (features in [0, 1])"
+        )
+        print(
+            f"  relative to the pixel's largest channel: mean {out['rel_mean']:.2e}  "
+            f"p99 {out['rel_p99']:.2e}"
+        )
     return 0
 
 

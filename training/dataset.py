@@ -30,10 +30,10 @@ SAMPLE_KEYS = {
 }
 
 
-
 def sample_name(t: int, k: int) -> str:
     """File stem of the sample centred on frame ``t`` seen by camera ``k``."""
     return f"t{t:05d}_v{k:02d}"
+
 
 @dataclass(frozen=True)
 class ProxyFrames:
@@ -174,7 +174,6 @@ class GarmentDataset:
     def __getitem__(self, i: int) -> dict:
         import torch
         from PIL import Image
-
 
         t, k, camera = self.samples[i]
         frames = [self.proxy_maps(f, camera) for f in (t - 1, t, t + 1)]

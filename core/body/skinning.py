@@ -346,7 +346,7 @@ def pose_body(body, motion) -> np.ndarray:
     return linear_blend_skinning(body.vertices, body.weights, transforms)
 
 
-def motion_arrays(skeleton: Skeleton, motion) -> tuple[np.ndarray, np.ndarray]:
+def motion_arrays(skeleton: Skeleton, motion, path=None) -> tuple[np.ndarray, np.ndarray]:
     """A motion's local rotations and root positions, checked against ``skeleton``.
 
     Parameters
@@ -355,6 +355,7 @@ def motion_arrays(skeleton: Skeleton, motion) -> tuple[np.ndarray, np.ndarray]:
         The body's skeleton (the mannequin's joints).
     motion : core.motion.motion.Motion, or a pair ``(rotations, root_positions)``
         A Motion must be on ``skeleton``'s joints (same names and order).
+    path : the motion's file, named in errors
 
     Returns
     -------
@@ -371,7 +372,8 @@ def motion_arrays(skeleton: Skeleton, motion) -> tuple[np.ndarray, np.ndarray]:
             raise InputError(
                 "motion is not on the mannequin's joints "
                 f"({motion.skeleton.num_joints} joints from {motion.skeleton.names[0]!r}); "
-                "retarget it first (core.motion.retarget)"
+                "retarget it first (core.motion.retarget / dng motion retarget)",
+                path,
             )
         rotations, root = motion.rotations, motion.root_positions
     else:
@@ -379,15 +381,15 @@ def motion_arrays(skeleton: Skeleton, motion) -> tuple[np.ndarray, np.ndarray]:
             rotations, root = motion
         except (TypeError, ValueError):
             raise InputError(
-                "pose_body takes a Motion or a pair (rotations, root_positions)"
+                "a motion must be a Motion or a pair (rotations, root_positions)", path
             ) from None
     rotations = np.asarray(rotations, np.float64)
     root = np.asarray(root, np.float64)
     j = skeleton.num_joints
     if rotations.ndim != 4 or rotations.shape[1:] != (j, 3, 3):
-        raise InputError(f"rotations must be (T, {j}, 3, 3), got {rotations.shape}")
+        raise InputError(f"rotations must be (T, {j}, 3, 3), got {rotations.shape}", path)
     if root.shape != (len(rotations), 3):
-        raise InputError(f"root_positions must be ({len(rotations)}, 3), got {root.shape}")
+        raise InputError(f"root_positions must be ({len(rotations)}, 3), got {root.shape}", path)
     if not (np.isfinite(rotations).all() and np.isfinite(root).all()):
-        raise InputError("motion has NaN or infinite values")
+        raise InputError("motion has NaN or infinite values", path)
     return rotations, root

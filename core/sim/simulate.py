@@ -38,7 +38,8 @@ from core.body.colliders import (
     penetration_depths,
     pose_capsules,
 )
-from core.body.shape import MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.skinning import motion_arrays
 from core.errors import InputError
 from core.mesh import Mesh, count_components, unique_edges
 from core.sim.cache import SimCache
@@ -585,17 +586,6 @@ class _Scene:
         self.s0.particle_qd.assign(wp.array(snap[1], dtype=wp.vec3, device=self.device))
 
 
-def mannequin_motion_arrays(motion, shape: BodyShape, path=None):
-    """The motion's rotations and root positions, checked to be on the mannequin's joints."""
-    if tuple(motion.skeleton.names) != MANNEQUIN_JOINTS:
-        raise InputError(
-            f"motion {motion.name!r} is not on the mannequin's joints; retarget it first "
-            "(core.motion.retarget / dng motion retarget)",
-            path,
-        )
-    return np.asarray(motion.rotations), np.asarray(motion.root_positions)
-
-
 def simulate(
     garment: Mesh,
     motion,
@@ -632,8 +622,8 @@ def simulate(
     t_start = time.perf_counter()
     shape = BodyShape() if shape is None else shape
     config = SimConfig() if config is None else config
-    rotations, roots = mannequin_motion_arrays(motion, shape, path)
     skeleton = mannequin_skeleton(shape)
+    rotations, roots = motion_arrays(skeleton, motion, path)
     n = config.steps_per_frame(motion.fps)
     drive = body_drive(
         skeleton, rotations, roots, motion.fps, n, config.transition_s, config.settle_s

@@ -73,10 +73,10 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
     simulation: edge stretch and compression against the rest garment, tears, penetration into
     the body colliders; ``sheet.png`` shows the proxy and the target on the body."""
+    from core.body.colliders import body_capsules, penetration_depths, pose_capsules
     from core.body.shape import mannequin_skeleton
     from core.mesh import load_mesh
     from core.sim import SimCache, load_cache, save_cache
-    from core.body.colliders import body_capsules, penetration_depths, pose_capsules
     from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, drive, embed, strain_stats
     from core.skeleton import forward_kinematics, skinning_transforms
 

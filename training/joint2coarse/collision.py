@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from core.body.colliders import penetration_depths, posed_garment_capsules
-from core.body.shape import BodyShape
-from core.sim.simulate import mannequin_motion_arrays
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.skinning import motion_arrays
 
 #: Default distance (metres) kept between a pushed vertex and the capsule surface.
 DEFAULT_MARGIN_M = 0.002
@@ -118,7 +118,7 @@ def simulation_colliders(
         Posed capsule end points.
     radii : (K,) float32
     """
-    rotations, roots = mannequin_motion_arrays(motion, shape)
+    rotations, roots = motion_arrays(mannequin_skeleton(shape), motion)
     return posed_garment_capsules(shape, rotations, roots, garment_top, arm_colliders)
 
 
