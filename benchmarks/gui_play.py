@@ -39,19 +39,21 @@ def main() -> None:
     args = parser.parse_args()
 
     from app.gui import start_application
-    from app.gui.controller import LIVE_REDRAW_HZ, PLAY_REDRAW_HZ, Studio
+    from app.gui.controller import Studio
+    from app.gui.player import LIVE_REDRAW_HZ, PLAY_REDRAW_HZ
 
     app = start_application()
     studio = Studio(None)
+    player = studio.player
     while studio.open_seconds is None:
         app.run_one_tick()
         studio.service()
     studio.open_project(args.project)
     studio.wait_idle(timeout=600)
-    if not studio.num_frames:
+    if not player.num_frames:
         raise SystemExit(f"{args.project}: no motion loaded (is it a trained project?)")
-    studio.set_live_render(True)
-    studio.set_view_mode(args.view)
+    player.set_live_render(True)
+    player.set_view_mode(args.view)
     studio.wait_idle()
     if args.burn:
 
@@ -61,9 +63,9 @@ def main() -> None:
 
         threading.Thread(target=burn, daemon=True).start()
 
-    n3d, nlive, nrender = studio.play_frames_shown, studio.live_frames_shown, studio.render_count
+    n3d, nlive, nrender = player.play_frames_shown, player.live_frames_shown, player.render_count
     longest = 0.0
-    studio.play()
+    player.play()
     start = time.perf_counter()
     while time.perf_counter() - start < args.seconds:
         t = time.perf_counter()
@@ -72,7 +74,7 @@ def main() -> None:
         longest = max(longest, time.perf_counter() - t)
         time.sleep(0.002)
     played = time.perf_counter() - start
-    studio.pause()
+    player.pause()
     studio.wait_idle()
     with tempfile.TemporaryDirectory() as tmp:
         t = time.perf_counter()
@@ -84,20 +86,20 @@ def main() -> None:
     studio.view.close_dialog()
     studio.wait_idle()
     dialog = time.perf_counter() - t
-    print(f"project {args.project}, motion {studio.motion_name}, {studio.num_frames} frames")
+    print(f"project {args.project}, motion {player.motion_name}, {player.num_frames} frames")
     print(
         f"redraw limits while playing: 3D view {PLAY_REDRAW_HZ:g} Hz, live image "
         f"{LIVE_REDRAW_HZ:g} Hz; GIL-holding thread: {args.burn}"
     )
-    print(f"played {played:.1f} s, main area: {studio.main_view()}:")
-    if studio.neural_image is not None and studio.main_view() != "scene":
-        h, w = studio.neural_image.shape[:2]
+    print(f"played {played:.1f} s, main area: {player.main_view()}:")
+    if player.neural_image is not None and player.main_view() != "scene":
+        h, w = player.neural_image.shape[:2]
         vw, vh = studio.view.main_size
         print(f"  neural viewport        {w}x{h} px upscaled to {vw}x{vh} (render size at the end)")
-    shown = "3D view frames shown  " if studio.main_view() == "scene" else "frames advanced       "
-    print(f"  {shown} {(studio.play_frames_shown - n3d) / played:6.1f} /s")
-    print(f"  live images shown      {(studio.live_frames_shown - nlive) / played:6.1f} /s")
-    print(f"  neural renders made    {(studio.render_count - nrender) / played:6.1f} /s")
+    shown = "3D view frames shown  " if player.main_view() == "scene" else "frames advanced       "
+    print(f"  {shown} {(player.play_frames_shown - n3d) / played:6.1f} /s")
+    print(f"  live images shown      {(player.live_frames_shown - nlive) / played:6.1f} /s")
+    print(f"  neural renders made    {(player.render_count - nrender) / played:6.1f} /s")
     print(f"  longest main-loop tick {longest:6.2f} s")
     print(f"screenshot after play    {shot:6.2f} s (about 3.5 s when no frames are queued)")
     print(f"dialog after play        {dialog:6.2f} s")

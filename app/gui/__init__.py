@@ -2,8 +2,11 @@
 
 - :mod:`app.gui.model`: settings and logic, no GUI import (unit-tested);
 - :mod:`app.gui.window`: the widgets and the 3D scene (the view);
-- :mod:`app.gui.controller`: :class:`~app.gui.controller.Studio`, state, worker threads and the
-  driver API tests and scripts use;
+- the controllers: :class:`app.gui.controller.Studio` composes :class:`app.gui.player.Player`
+  (the main area, the timeline, the live neural render) and one controller per tab in
+  :mod:`app.gui.tabs` (``GarmentTab``, ``MotionTab``, ``PipelineTab``, ``ExportTab``), and
+  holds what they share (settings, the open project, the workers, the main loop); their public
+  methods are the driver API tests and scripts use;
 - :mod:`app.gui.workers`: the worker threads.
 
 Importing this package imports nothing heavy; :func:`run` does.

@@ -81,6 +81,7 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
 
     app = start_application()
     studio = Studio(None, width=width, height=height)
+    player, garment_tab, export_tab = studio.player, studio.garment_tab, studio.export_tab
     while studio.open_seconds is None:
         app.run_one_tick()
         studio.service()
@@ -89,51 +90,51 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     # from the cache: a second launch)
     studio.wait_idle()
     report["first_seconds"] = {
-        "body_shown_s": studio.body_shown_s,
-        "garment_shown_s": studio.garment_shown_s,
-        "garment_from_cache": studio.garment_from_cache,
+        "body_shown_s": garment_tab.body_shown_s,
+        "garment_shown_s": garment_tab.garment_shown_s,
+        "garment_from_cache": garment_tab.garment_from_cache,
     }
     t0 = time.perf_counter()
 
     # 1. a built-in garment, its proxy, a texture-size change (only the atlas re-runs)
     note("1. garment and proxy")
-    studio.load_garment("multilayer-skirt", resolution_mm=20.0)
+    garment_tab.load_garment("multilayer-skirt", resolution_mm=20.0)
     studio.wait_idle()
-    report["garment_vertices"] = int(studio.garment.num_vertices)
-    report["proxy_first_plan"] = studio.proxy_plan_ran
+    report["garment_vertices"] = int(garment_tab.garment.num_vertices)
+    report["proxy_first_plan"] = garment_tab.proxy_plan_ran
     studio.screenshot(out / "gui-garment.png")
     note("saved gui-garment.png")
-    studio.set_visibility(show_target=False, show_wireframe=True)
-    studio.derive_proxy(target_verts=400)
+    player.set_visibility(show_target=False, show_wireframe=True)
+    garment_tab.derive_proxy(target_verts=400)
     studio.wait_idle()
-    report["proxy_verts_plan"] = studio.proxy_plan_ran
-    studio.derive_proxy(texture_size=512)
+    report["proxy_verts_plan"] = garment_tab.proxy_plan_ran
+    garment_tab.derive_proxy(texture_size=512)
     studio.wait_idle()
-    report["proxy_texture_plan"] = studio.proxy_plan_ran
+    report["proxy_texture_plan"] = garment_tab.proxy_plan_ran
     report["proxy_report"] = {
-        "vertices": studio.proxy_result.report["proxy"]["vertices"],
-        "hausdorff_mm": 1e3 * studio.proxy_result.report["distance"]["hausdorff_m"],
-        "stretch_mean": studio.proxy_result.report["uv"]["stretch_mean"],
-        "texture_size": studio.proxy_result.report["uv"]["texture_size"],
+        "vertices": garment_tab.proxy_result.report["proxy"]["vertices"],
+        "hausdorff_mm": 1e3 * garment_tab.proxy_result.report["distance"]["hausdorff_m"],
+        "stretch_mean": garment_tab.proxy_result.report["uv"]["stretch_mean"],
+        "texture_size": garment_tab.proxy_result.report["uv"]["texture_size"],
     }
     studio.screenshot(out / "gui-proxy.png")
     note("saved gui-proxy.png")
-    studio.set_visibility(show_target=True, show_wireframe=False)
+    player.set_visibility(show_target=True, show_wireframe=False)
     report["garment_s"] = time.perf_counter() - t0
 
     # an error dialog; the window still works after OK
-    studio.load_garment("/nonexistent/garment.obj")
+    garment_tab.load_garment("/nonexistent/garment.obj")
     studio.wait_idle()
     report["error_shown"] = studio.errors[-1] if studio.errors else None
     studio.screenshot(out / "gui-error.png")
     note("saved gui-error.png")
     studio.view.close_dialog()
-    studio.set_visibility(show_wireframe=True)
+    player.set_visibility(show_wireframe=True)
     studio.wait_idle()
     report["usable_after_error"] = (
-        bool(studio.settings.show_wireframe) and studio.garment is not None
+        bool(studio.settings.show_wireframe) and garment_tab.garment is not None
     )
-    studio.set_visibility(show_wireframe=False)
+    player.set_visibility(show_wireframe=False)
 
     # 2. the project, a motion, the live neural render
     note("2. project, motion, live render")
@@ -141,61 +142,61 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     studio.open_project(project)
     studio.wait_idle(timeout=180)
     report["open_project_s"] = time.perf_counter() - t1
-    report["opened_in_view"] = studio.main_view()
+    report["opened_in_view"] = player.main_view()
     # 2b. the neural viewport (a project opens in it): a drag turns its camera, scrubbing changes the frame, play
     note("2b. neural viewport: drag, scrub, play, compare")
-    report["neural_view"] = studio.main_view()
-    before = studio.neural_image.copy()
-    studio.neural_drag(80, -20)
+    report["neural_view"] = player.main_view()
+    before = player.neural_image.copy()
+    player.neural_drag(80, -20)
     studio.wait_idle()
-    dragged = studio.neural_image.copy()
+    dragged = player.neural_image.copy()
     _png(out / "neural-a.png", before)
     _png(out / "neural-b.png", dragged)
-    f0 = studio.frame
-    studio.seek((f0 + studio.num_frames // 2) % studio.num_frames)
+    f0 = player.frame
+    player.seek((f0 + player.num_frames // 2) % player.num_frames)
     studio.wait_idle()
-    scrubbed = studio.neural_image.copy()
+    scrubbed = player.neural_image.copy()
     report["neural"] = {
         "shape": list(before.shape),
         "drag_diff": _mean_diff(before, dragged),
-        "scrub_frames": [f0, studio.frame],
+        "scrub_frames": [f0, player.frame],
         "scrub_diff": _mean_diff(dragged, scrubbed),
         "view_size": list(studio.view.main_size),
     }
-    n_live, n_render = studio.live_frames_shown, studio.render_count
-    studio.play()
+    n_live, n_render = player.live_frames_shown, player.render_count
+    player.play()
     t_play = time.perf_counter()
     studio.pump(PLAY_SECONDS)
-    studio.pause()
+    player.pause()
     played = time.perf_counter() - t_play
     studio.wait_idle()
     report["neural"]["play"] = {
         "seconds": played,
-        "shown_fps": (studio.live_frames_shown - n_live) / played,
-        "render_fps": (studio.render_count - n_render) / played,
-        "render_size": list(studio.neural_image.shape[:2]),
+        "shown_fps": (player.live_frames_shown - n_live) / played,
+        "render_fps": (player.render_count - n_render) / played,
+        "render_size": list(player.neural_image.shape[:2]),
         "stats": studio.view.neural_stats.text,
     }
     studio.screenshot(out / "gui-neural.png")
     note("saved gui-neural.png")
-    studio.set_view_mode("compare")
+    player.set_view_mode("compare")
     studio.wait_idle()
-    report["compare_shape"] = list(studio.neural_image.shape)
+    report["compare_shape"] = list(player.neural_image.shape)
     studio.screenshot(out / "gui-compare.png")
     note("saved gui-compare.png")
 
     # the 3D view for the steps below; a switch back to the neural view froze software Vulkan
     # (docs/gui.md), so the export renders from the 3D view's camera without one
-    studio.set_view_mode("scene")
+    player.set_view_mode("scene")
     studio.wait_idle()
-    report["motion"] = studio.motion_name
-    report["num_frames"] = studio.num_frames
-    studio.seek(min(10, studio.num_frames - 1))
+    report["motion"] = player.motion_name
+    report["num_frames"] = player.num_frames
+    player.seek(min(10, player.num_frames - 1))
     studio.wait_idle()
 
     # the camera conversion against Open3D's own matrices
     pose = CameraPose((0.4, 1.1, 2.6), (0.0, 0.85, 0.0), (0.0, 1.0, 0.0), 35.0)
-    studio.set_camera(pose.eye, pose.target, pose.up, pose.fov_deg)
+    player.set_camera(pose.eye, pose.target, pose.up, pose.fov_deg)
     studio.wait_idle()
     view, proj, fov = studio.view.gl_matrices()
     ours = camera_from_gl(view, proj, 128, 128)
@@ -205,12 +206,12 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
         "max_K_diff": float(np.abs(ours.K - ref.K).max()),
         "max_extrinsic_diff": float(np.abs(ours.extrinsic - ref.extrinsic).max()),
     }
-    report["live_a_frame"] = studio.frame
-    image_a = studio.live_image.copy()
+    report["live_a_frame"] = player.frame
+    image_a = player.live_image.copy()
     _png(out / "live-a.png", image_a)
-    studio.set_camera((-1.6, 1.3, 1.9), (0.0, 0.85, 0.0), (0.0, 1.0, 0.0), 35.0)
+    player.set_camera((-1.6, 1.3, 1.9), (0.0, 0.85, 0.0), (0.0, 1.0, 0.0), 35.0)
     studio.wait_idle()
-    image_b = studio.live_image.copy()
+    image_b = player.live_image.copy()
     _png(out / "live-b.png", image_b)
     report["live_image_shape"] = list(image_a.shape)
     report["errors_so_far"] = list(studio.errors)
@@ -219,76 +220,76 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     # live render's frame rate at 128 px (on the playback worker)
     note("3. play, step frames, live render frame rate")
     n3d, nlive, nrender, f0 = (
-        studio.play_frames_shown,
-        studio.live_frames_shown,
-        studio.render_count,
-        studio.frame,
+        player.play_frames_shown,
+        player.live_frames_shown,
+        player.render_count,
+        player.frame,
     )
-    studio.play()
+    player.play()
     t_play = time.perf_counter()
     studio.pump(PLAY_SECONDS)
-    studio.pause()
+    player.pause()
     played = time.perf_counter() - t_play
     studio.wait_idle()
     report["play"] = {
         "seconds": played,
         # Modulo the clip: 0 when play wrapped round to where it started (a 40-frame clip
         # at 30 fps for 4 s). frames_shown counts every change of frame.
-        "frames_advanced": (studio.frame - f0) % max(studio.num_frames, 1),
-        "frames_shown": studio.play_frames_shown - n3d,
-        "view_fps": (studio.play_frames_shown - n3d) / played,
-        "live_shown_fps": (studio.live_frames_shown - nlive) / played,
-        "live_render_fps": (studio.render_count - nrender) / played,
+        "frames_advanced": (player.frame - f0) % max(player.num_frames, 1),
+        "frames_shown": player.play_frames_shown - n3d,
+        "view_fps": (player.play_frames_shown - n3d) / played,
+        "live_shown_fps": (player.live_frames_shown - nlive) / played,
+        "live_render_fps": (player.render_count - nrender) / played,
     }
     t_shot = time.perf_counter()
     studio.screenshot(out / "gui-play.png")
     report["screenshot_after_play_s"] = time.perf_counter() - t_shot
     note("saved gui-play.png")
-    studio.set_show_ground_truth(True)
+    player.set_show_ground_truth(True)
     studio.wait_idle()
-    f0, n0 = studio.frame, studio.render_count
+    f0, n0 = player.frame, player.render_count
     for _ in range(3):
-        studio.step(1)
+        player.step(1)
         studio.wait_idle()
     report["stepped"] = {
-        "frames_advanced": (studio.frame - f0) % max(studio.num_frames, 1),
-        "renders": studio.render_count - n0,
+        "frames_advanced": (player.frame - f0) % max(player.num_frames, 1),
+        "renders": player.render_count - n0,
     }
-    studio.benchmark_live(20)
+    player.benchmark_live(20)
     studio.wait_idle(timeout=180)
-    report["live_benchmark"] = studio.live_benchmark
-    report["has_sim"] = studio.sim_frames is not None
+    report["live_benchmark"] = player.live_benchmark
+    report["has_sim"] = player.sim_frames is not None
 
     # 4. export: camera keys at two frames, an MP4 and a GIF along the smooth path between
     # them (progress, atomic), a cancelled export (no file), the path as JSON, the proxy OBJ
     note("4. export")
-    studio.seek(0)
-    studio.add_path_key()
-    studio.seek(5)
-    studio.set_camera((1.8, 1.2, 1.6), (0.0, 0.85, 0.0))
-    studio.add_path_key()
-    studio.seek(0)
-    studio.set_export_frames(6)
-    studio.set_export_reference(True)
-    studio.export_video(str(out / "path.mp4"), size=96)
+    player.seek(0)
+    export_tab.add_path_key()
+    player.seek(5)
+    player.set_camera((1.8, 1.2, 1.6), (0.0, 0.85, 0.0))
+    export_tab.add_path_key()
+    player.seek(0)
+    export_tab.set_export_frames(6)
+    export_tab.set_export_reference(True)
+    export_tab.export_video(str(out / "path.mp4"), size=96)
     studio.wait_idle(timeout=120)
     report["export_label"] = studio.view.export_label.text
     studio.view.tabs.selected_tab_index = 3
     studio.screenshot(out / "gui-export.png")
     note("saved gui-export.png")
-    studio.set_export_reference(False)
-    studio.export_gif(str(out / "path.gif"), size=96)
-    studio.set_export_frames(40)
-    studio.export_video(str(out / "cancelled.mp4"), size=96)
-    studio.cancel_export()  # queued behind the GIF: stops before its first frame
+    export_tab.set_export_reference(False)
+    export_tab.export_gif(str(out / "path.gif"), size=96)
+    export_tab.set_export_frames(40)
+    export_tab.export_video(str(out / "cancelled.mp4"), size=96)
+    export_tab.cancel_export()  # queued behind the GIF: stops before its first frame
     studio.wait_idle(timeout=120)
     report["cancelled"] = {
         "label": studio.view.export_label.text,
         "file": (out / "cancelled.mp4").exists(),
         "leftovers": sorted(p.name for p in out.iterdir() if "cancelled" in p.name),
     }
-    studio.save_camera_path(str(out / "path.json"))
-    studio.export_proxy(str(out / "proxy.obj"))
+    export_tab.save_camera_path(str(out / "path.json"))
+    export_tab.export_proxy(str(out / "proxy.obj"))
     studio.wait_idle(timeout=120)
     studio.view.tabs.selected_tab_index = 0
     report["mp4"] = (out / "path.mp4").is_file()
@@ -298,9 +299,9 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
 
     # 5. settings saved with the project (what a reopened window restores)
     note("5. settings saved")
-    studio.seek(3)
+    player.seek(3)
     studio.wait_idle()
-    saved_pose = studio.current_pose()
+    saved_pose = player.current_pose()
     studio.save_settings()
     saved = load_settings(project)
     report["saved_settings"] = saved.as_dict()

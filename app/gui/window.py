@@ -1,7 +1,9 @@
 """The studio window (the view): widgets and the 3D scene, nothing else.
 
-Every method here runs on the main thread. The controller (:mod:`app.gui.controller`) calls the
-``show_*`` / ``set_*`` methods; user actions call the controller's methods. Layout::
+Every method here runs on the main thread. The controllers (:mod:`app.gui.controller`'s
+``Studio`` and its parts: :class:`app.gui.player.Player` for the main area, the timeline and the
+live render, :mod:`app.gui.tabs` for the tabs) call the ``show_*`` / ``set_*`` methods; each
+widget's action calls the part it belongs to. Layout::
 
     +--------------------------------------+---------------------------+
     |                                      | live: neural | reference  |
@@ -58,10 +60,12 @@ def _label_row(text: str, widget, em: float) -> gui.Horiz:
 
 
 class StudioWindow:
-    """Widgets of the studio; ``controller`` receives the user's actions."""
+    """Widgets of the studio; ``studio`` (:class:`app.gui.controller.Studio`) and its parts
+    receive the user's actions."""
 
-    def __init__(self, controller, width: int = 1500, height: int = 940):
-        self.c = controller
+    def __init__(self, studio, width: int = 1500, height: int = 940):
+        self.studio = studio
+        player = studio.player
         app = gui.Application.instance
         self.window = app.create_window("Garment studio", width, height)
         w = self.window
@@ -109,16 +113,16 @@ class StudioWindow:
         self.timeline = gui.Horiz(0.5 * em, gui.Margins(0.5 * em, 0.25 * em, 0.5 * em, 0.25 * em))
         self.play_button = gui.Button("Play")
         self.play_button.horizontal_padding_em = 0.8
-        self.play_button.set_on_clicked(controller.toggle_play)
+        self.play_button.set_on_clicked(player.toggle_play)
         self.frame_slider = gui.Slider(gui.Slider.INT)
         self.frame_slider.set_limits(0, 1)
-        self.frame_slider.set_on_value_changed(lambda v: controller.seek(int(v)))
+        self.frame_slider.set_on_value_changed(lambda v: player.seek(int(v)))
         self.frame_label = gui.Label("frame 0 / 0   0.00 s")
         self.mode_combo = gui.Combobox()
         for label, _mode in VIEW_MODES:
             self.mode_combo.add_item(label)
         self.mode_combo.set_on_selection_changed(
-            lambda _t, i: controller.set_view_mode(VIEW_MODES[i][1])
+            lambda _t, i: player.set_view_mode(VIEW_MODES[i][1])
         )
         self.mode_combo.selected_index = [m for _l, m in VIEW_MODES].index("scene")
         self.speed_combo = gui.Combobox()
@@ -126,11 +130,11 @@ class StudioWindow:
             self.speed_combo.add_item(f"{sp:g}x")
         self.speed_combo.selected_index = PLAY_SPEEDS.index(1.0)
         self.speed_combo.set_on_selection_changed(
-            lambda _t, i: controller.set_play_speed(PLAY_SPEEDS[i])
+            lambda _t, i: player.set_play_speed(PLAY_SPEEDS[i])
         )
         self.loop_check = gui.Checkbox("loop")
         self.loop_check.checked = True
-        self.loop_check.set_on_checked(controller.set_loop)
+        self.loop_check.set_on_checked(player.set_loop)
         self.timeline.add_child(self.mode_combo)
         self.timeline.add_child(self.play_button)
         self.timeline.add_child(self.frame_slider)
@@ -144,16 +148,16 @@ class StudioWindow:
         live_title = gui.Horiz(0.5 * em)
         live_title.add_child(gui.Label("Live neural render"))
         self.live_check = gui.Checkbox("on")
-        self.live_check.set_on_checked(controller.set_live_render)
+        self.live_check.set_on_checked(player.set_live_render)
         live_title.add_child(self.live_check)
         self.gt_check = gui.Checkbox("reference")
-        self.gt_check.set_on_checked(controller.set_show_ground_truth)
+        self.gt_check.set_on_checked(player.set_show_ground_truth)
         live_title.add_child(self.gt_check)
         self.size_combo = gui.Combobox()
         for s in RENDER_SIZES:
             self.size_combo.add_item(f"{s} px")
         self.size_combo.set_on_selection_changed(
-            lambda _t, i: controller.set_render_size(RENDER_SIZES[i])
+            lambda _t, i: player.set_render_size(RENDER_SIZES[i])
         )
         live_title.add_child(self.size_combo)
         self.panel.add_child(live_title)
@@ -174,12 +178,12 @@ class StudioWindow:
 
         w.set_on_layout(self._on_layout)
         w.set_on_key(self._on_key)
-        w.set_on_close(controller.on_close)
+        w.set_on_close(studio.on_close)
 
     # -- tabs ------------------------------------------------------------------------------
 
     def _garment_tab(self, em: float):
-        c = self.c
+        c, player = self.studio.garment_tab, self.studio.player
         tab = gui.Vert(0.35 * em, gui.Margins(0.3 * em, 0.3 * em, 0.3 * em, 0.3 * em))
         row = gui.Horiz(0.3 * em)
         self.garment_combo = gui.Combobox()
@@ -196,13 +200,13 @@ class StudioWindow:
 
         row = gui.Horiz(0.3 * em)
         self.show_target = gui.Checkbox("shaded")
-        self.show_target.set_on_checked(lambda v: c.set_visibility(show_target=v))
+        self.show_target.set_on_checked(lambda v: player.set_visibility(show_target=v))
         self.show_wire = gui.Checkbox("wireframe")
-        self.show_wire.set_on_checked(lambda v: c.set_visibility(show_wireframe=v))
+        self.show_wire.set_on_checked(lambda v: player.set_visibility(show_wireframe=v))
         self.show_proxy = gui.Checkbox("proxy")
-        self.show_proxy.set_on_checked(lambda v: c.set_visibility(show_proxy=v))
+        self.show_proxy.set_on_checked(lambda v: player.set_visibility(show_proxy=v))
         self.show_body = gui.Checkbox("body")
-        self.show_body.set_on_checked(lambda v: c.set_visibility(show_body=v))
+        self.show_body.set_on_checked(lambda v: player.set_visibility(show_body=v))
         for wdg in (self.show_target, self.show_wire, self.show_proxy, self.show_body):
             row.add_child(wdg)
         tab.add_child(row)
@@ -236,7 +240,7 @@ class StudioWindow:
         return tab
 
     def _motion_tab(self, em: float):
-        c = self.c
+        c, player = self.studio.motion_tab, self.studio.player
         tab = gui.Vert(0.35 * em, gui.Margins(0.3 * em, 0.3 * em, 0.3 * em, 0.3 * em))
         row = gui.Horiz(0.3 * em)
         open_project = gui.Button("Open project...")
@@ -260,7 +264,7 @@ class StudioWindow:
         self.motion_label = gui.Label("no motion")
         tab.add_child(self.motion_label)
         self.show_sim = gui.Checkbox("simulated proxy (red wireframe) beside Joint2Coarse")
-        self.show_sim.set_on_checked(lambda v: c.set_visibility(show_sim=v))
+        self.show_sim.set_on_checked(lambda v: player.set_visibility(show_sim=v))
         tab.add_child(self.show_sim)
 
         tab.add_child(gui.Label("Body"))
@@ -287,7 +291,7 @@ class StudioWindow:
         return tab
 
     def _pipeline_tab(self, em: float):
-        c = self.c
+        c = self.studio.pipeline_tab
         tab = gui.Vert(0.35 * em, gui.Margins(0.3 * em, 0.3 * em, 0.3 * em, 0.3 * em))
         row = gui.Horiz(0.3 * em)
         for label, which in (
@@ -322,7 +326,7 @@ class StudioWindow:
         return tab
 
     def _export_tab(self, em: float):
-        c = self.c
+        c = self.studio.export_tab
         tab = gui.Vert(0.35 * em, gui.Margins(0.3 * em, 0.3 * em, 0.3 * em, 0.3 * em))
         row = gui.Horiz(0.3 * em)
         add = gui.Button("Add view to path")
@@ -356,7 +360,7 @@ class StudioWindow:
         obj = gui.Button("Export proxy OBJ...")
         obj.set_on_clicked(lambda: self._save_dialog("OBJ", ".obj", c.export_proxy))
         save = gui.Button("Save settings")
-        save.set_on_clicked(c.save_settings)
+        save.set_on_clicked(self.studio.save_settings)
         row.add_child(mp4)
         row.add_child(gif)
         row.add_child(obj)
@@ -425,17 +429,17 @@ class StudioWindow:
             dx, dy = event.x - self._drag_at[0], event.y - self._drag_at[1]
             self._drag_at = (event.x, event.y)
             if event.is_modifier_down(gui.KeyModifier.CTRL):
-                self.c.neural_zoom(dy / 100.0)
+                self.studio.player.neural_zoom(dy / 100.0)
             elif event.is_button_down(gui.MouseButton.RIGHT) or event.is_modifier_down(
                 gui.KeyModifier.SHIFT
             ):
-                self.c.neural_drag(dx, dy, pan=True)
+                self.studio.player.neural_drag(dx, dy, pan=True)
             else:
-                self.c.neural_drag(dx, dy)
+                self.studio.player.neural_drag(dx, dy)
         elif event.type == t.BUTTON_UP:
             self._drag_at = None
         elif event.type == t.WHEEL:
-            self.c.neural_zoom(event.wheel_dy)
+            self.studio.player.neural_zoom(event.wheel_dy)
         else:
             return gui.Widget.EventCallbackResult.IGNORED
         return gui.Widget.EventCallbackResult.CONSUMED
@@ -445,10 +449,10 @@ class StudioWindow:
         if event.type != gui.KeyEvent.Type.DOWN:
             return False
         actions = {
-            gui.KeyName.SPACE: self.c.toggle_play,
-            gui.KeyName.RIGHT: lambda: self.c.step(1),
-            gui.KeyName.LEFT: lambda: self.c.step(-1),
-            gui.KeyName.HOME: lambda: self.c.seek(0),
+            gui.KeyName.SPACE: self.studio.player.toggle_play,
+            gui.KeyName.RIGHT: lambda: self.studio.player.step(1),
+            gui.KeyName.LEFT: lambda: self.studio.player.step(-1),
+            gui.KeyName.HOME: lambda: self.studio.player.seek(0),
         }
         action = actions.get(event.key)
         if action is None:
@@ -476,7 +480,7 @@ class StudioWindow:
             gui.FileDialog.OPEN,
             "Open a detailed garment",
             [(".obj .ply .glb .gltf .off .stl", "meshes"), ("", "all files")],
-            self.c.load_garment,
+            self.studio.garment_tab.load_garment,
         )
 
     def _open_bvh_dialog(self) -> None:
@@ -484,18 +488,23 @@ class StudioWindow:
             gui.FileDialog.OPEN,
             "Open a motion",
             [(".bvh .glb .gltf", "motion (BVH, glTF)")],
-            self.c.load_motion,
+            self.studio.motion_tab.load_motion,
         )
 
     def _open_project_dialog(self) -> None:
-        self._file_dialog(gui.FileDialog.OPEN_DIR, "Open a project folder", [], self.c.open_project)
+        self._file_dialog(
+            gui.FileDialog.OPEN_DIR,
+            "Open a project folder",
+            [],
+            self.studio.motion_tab.open_project,
+        )
 
     def _open_background_dialog(self) -> None:
         self._file_dialog(
             gui.FileDialog.OPEN,
             "Background image",
             [(".png .jpg .jpeg", "images")],
-            self.c.finetune_background,
+            self.studio.motion_tab.finetune_background,
         )
 
     def _save_dialog(self, what: str, ext: str, on_done) -> None:
