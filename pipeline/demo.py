@@ -18,6 +18,8 @@ from pipeline.config import (
     joint2coarse_config,
     renderer_config,
 )
+from pipeline.deviations import as_json as deviations_json
+from pipeline.deviations import deviations_markdown, from_json, methods_markdown
 from pipeline.stages.ablations import stage_ablation
 from pipeline.stages.baselines import stage_baselines
 from pipeline.stages.dataset import stage_dataset, stage_testset
@@ -258,6 +260,7 @@ def run_demo(
         "baselines": baselines,
         "evaluation": evaluation,
         "videos": videos,
+        "against_the_paper": deviations_json(config),
         "total_seconds": time.perf_counter() - progress.start,
     }
     write_json(project.root / "report.json", report)
@@ -447,6 +450,26 @@ def _ground_truth_markdown(report: dict) -> list[str]:
     return lines
 
 
+def _against_the_paper_markdown(report: dict) -> list[str]:
+    """What each method of the comparison got, and every deviation from the paper."""
+    if "against_the_paper" not in report:
+        return []
+    rows, methods = from_json(report["against_the_paper"])
+    lines = []
+    if report.get("renderer"):
+        lines += [
+            "",
+            "## What each method got",
+            "",
+            "Trainable parameters of what renders (no discriminator), counted on a fresh model "
+            "of this project's configuration.",
+            "",
+            methods_markdown(methods),
+        ]
+    lines += ["", "## Deviations from the paper", "", deviations_markdown(rows)]
+    return lines
+
+
 def report_markdown(report: dict) -> str:
     """The human-readable report: every figure with the command that produced it."""
     cmd = f"`{report['command']}`"
@@ -537,6 +560,7 @@ def report_markdown(report: dict) -> str:
     lines += ["", "Side by side (simulation above, prediction below):", ""]
     lines += [f"![{name}](joint2coarse/compare-{name}.png)" for name in j["motions"]]
     lines += _renderer_markdown(report)
+    lines += _against_the_paper_markdown(report)
     lines += [
         "",
         f"Total: {report['total_seconds'] / 60:.1f} min. Configuration: `report.json` (`config`).",

@@ -1,0 +1,364 @@
+"""What a project runs, set against the paper: the table of deviations, and what each method of
+the comparison got (capacity, schedule, losses, compositing).
+
+Both are computed from the project's resolved configurations (:func:`~pipeline.config.
+renderer_config`, :func:`~pipeline.config.baseline_config`, :func:`~pipeline.config.
+joint2coarse_config`) and the code's fixed choices, so the report cannot drift from what ran; the
+README's copy of the quick preset's tables is checked against them by the tests
+(``tests/test_deviations.py``). The paper's numbers are DESIGN.md's ("The method").
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from pipeline.config import (
+    PipelineConfig,
+    available_extra_motions,
+    baseline_config,
+    joint2coarse_config,
+    renderer_config,
+)
+
+#: The paper's settings this module compares against (DESIGN.md, "The method").
+PAPER_TRAIN_FRAMES = 850
+PAPER_VIEWS = 10
+PAPER_IMAGE_SIZE = 512
+PAPER_TEXTURE = ((512, 256, 128, 64), 16)
+PAPER_LATENT = (16, 16, 512)  # at 512 px
+PAPER_LOSS = {"w_l1": 10.0, "w_perceptual": 10.0, "w_fm": 5.0, "w_gan": 0.5}
+PAPER_LR = {"lr_g": 1e-4, "lr_d": 3e-4}
+
+
+@dataclass(frozen=True)
+class Deviation:
+    """One way the project's run differs from the paper's method."""
+
+    part: str
+    """What it concerns: data, ground truth, proxy, Joint2Coarse, renderer, training."""
+    paper: str
+    """What the paper does."""
+    here: str
+    """What this project does."""
+    why: str
+    """The reason, with where it was measured when it was."""
+
+
+@dataclass(frozen=True)
+class MethodBudget:
+    """What one method of the image comparison trains with."""
+
+    method: str
+    parameters: int
+    """Trainable parameters of what renders (network and neural texture; no discriminator)."""
+    texture: str
+    """Neural texture, levels x channels (``-``: none)."""
+    steps: int
+    batch: int
+    learning_rate: str
+    """The generator's Adam rate and its schedule."""
+    losses: str
+    background: str
+    """How the body around the garment gets into the image."""
+
+
+def _texture(sizes, channels) -> str:
+    return f"{len(sizes)} levels ({', '.join(str(s) for s in sizes)} texels) x {channels} ch"
+
+
+def _schedule(lr: float, decay_from: float) -> str:
+    if decay_from >= 1.0:
+        return f"{lr:g}, constant"
+    return f"{lr:g}, falling linearly to 0 from {decay_from:.0%} of the steps"
+
+
+def _losses(cfg, gan_weight: str = "w_gan") -> str:
+    parts = [f"L1 {cfg.w_l1:g}"]
+    if cfg.w_perceptual:
+        parts.append(
+            f"perceptual {cfg.w_perceptual:g}" + ("" if cfg.vgg_path else " (off: no VGG19 file)")
+        )
+    if cfg.w_fm:
+        parts.append(f"feature matching {cfg.w_fm:g}")
+    if getattr(cfg, gan_weight):
+        parts.append(f"GAN {getattr(cfg, gan_weight):g}")
+    return ", ".join(parts)
+
+
+def _latent(cfg) -> tuple[int, int, int]:
+    from training.renderer.model import RenderNet
+
+    side = cfg.image_size // 2**cfg.n_down
+    return side, side, RenderNet(cfg).spade.conv1.in_channels
+
+
+def deviations(config: PipelineConfig) -> list[Deviation]:
+    """Every way ``config``'s run differs from the paper, in pipeline order."""
+    r = renderer_config(config)
+    j = joint2coarse_config(config)
+    rows: list[Deviation] = []
+
+    def add(part, paper, here, why):
+        rows.append(Deviation(part, paper, here, why))
+
+    train = config.train_motion
+    if train.frames != PAPER_TRAIN_FRAMES:
+        add(
+            "data",
+            f"one {PAPER_TRAIN_FRAMES}-frame dance",
+            f"one {train.frames}-frame {train.kind}, a sample centred every {config.frame_stride} "
+            "frames",
+            "CPU budget: simulation, renders and training scale with the frames",
+        )
+    if config.views_per_frame != PAPER_VIEWS:
+        add(
+            "data",
+            f"{PAPER_VIEWS} random cameras per frame",
+            f"{config.views_per_frame} random cameras per frame",
+            "CPU budget (the fewer-views ablation measures what it costs)",
+        )
+    if r.image_size != PAPER_IMAGE_SIZE:
+        add(
+            "data",
+            f"{PAPER_IMAGE_SIZE} px images",
+            f"{r.image_size} px",
+            "CPU budget: a step costs about the pixel count",
+        )
+    steps = f"{config.sim_substeps} x {config.sim_iterations} substeps x iterations a frame"
+    if config.target_mode == "embed":
+        add(
+            "ground truth",
+            "the detailed garment simulated (Marvelous Designer)",
+            "the proxy simulated (newton, Style3D, "
+            + steps
+            + "); the detailed target embedded in it: its details keep their offsets, no "
+            "secondary motion of their own",
+            "simulating stacked layers millimetres apart takes minutes per clip on 2 cores; "
+            "Marvelous Designer is not available",
+        )
+    else:
+        add(
+            "ground truth",
+            "the detailed garment simulated (Marvelous Designer)",
+            f"simulated with newton (Style3D, {steps})",
+            "Marvelous Designer is not available",
+        )
+    if config.proxy_template:
+        add(
+            "proxy",
+            "a coarse garment made for the target",
+            f"the built-in template `{config.proxy_template}` fitted to the target",
+            "the template ablation",
+        )
+    else:
+        add(
+            "proxy",
+            "a coarse garment made for the target",
+            f"derived automatically: layers collapsed, decimated to about {config.proxy_verts} "
+            "vertices, xatlas UV atlas",
+            "the studio's point: any detailed garment in, no hand work",
+        )
+    extra = available_extra_motions(config)
+    if extra:
+        frames = train.frames + sum(m.frames for m in extra)
+        add(
+            "Joint2Coarse",
+            "trained on the one training motion",
+            f"trained on a library of {1 + len(extra)} clips ({frames} frames), "
+            f"chosen on validation clips ({len(config.joint2coarse_validation)})",
+            "one dance does not generalise to unseen motions",
+        )
+    if j.model == "ours":
+        add(
+            "Joint2Coarse",
+            "shape autoencoder + motion encoder",
+            "ours: the proxy skinned to the body plus a residual on the joints' history",
+            "chosen on the validation clips",
+        )
+    else:
+        if j.tilt_follow:
+            add(
+                "Joint2Coarse",
+                "vertices predicted in the root's heading frame",
+                f"the waistband follows {j.tilt_follow:g} of the pelvis's tilt, none at the hem",
+                "measured in `tilt_follow`'s docstring (chosen before the validation split)",
+            )
+        if j.output_basis and config.proxy_verts * 3 > j.output_basis:
+            add(
+                "Joint2Coarse",
+                "decoder's last layer to every coordinate",
+                f"to {j.output_basis} principal components of the training shapes",
+                "6x fewer weights at 2000 vertices: what makes streaming fast",
+            )
+        if config.proxy_verts < j.width_reference_vertices:
+            add(
+                "Joint2Coarse",
+                "shape network 2048-1024-512-256-128-64",
+                f"widths scaled by vertices / {j.width_reference_vertices} (at least "
+                f"{j.min_width}) for smaller proxies",
+                "a 1000-vertex proxy has fewer inputs than the first layer's width",
+            )
+    add(
+        "Joint2Coarse",
+        "prediction used as it comes",
+        "vertices inside the body pushed out of the simulation's capsules",
+        "the report gives penetration before and after",
+    )
+    sizes, channels = PAPER_TEXTURE
+    if (tuple(r.texture_sizes), r.texture_channels) != (sizes, channels):
+        add(
+            "renderer",
+            f"neural texture {_texture(sizes, channels)}",
+            _texture(r.texture_sizes, r.texture_channels),
+            "the texture's sampling backward dominates a CPU step",
+        )
+    latent = _latent(r)
+    if latent != PAPER_LATENT:
+        add(
+            "renderer",
+            f"latent {'x'.join(map(str, PAPER_LATENT))} at {PAPER_IMAGE_SIZE} px",
+            f"{'x'.join(map(str, latent))} at {r.image_size} px (first layer {r.base_width} "
+            f"channels, discriminator {r.disc_width})",
+            "CPU budget",
+        )
+    if r.skip_connections:
+        add(
+            "renderer",
+            "decoder from the latent alone",
+            "U-Net skips from frame t's encoder at every scale; they bypass the SPADE block, "
+            "so the temporal conditioning acts at the bottleneck only",
+            "sharper folds within a few thousand steps",
+        )
+    if r.blend_output:
+        add(
+            "renderer",
+            "the image is the network's output",
+            "blended with the real background by a predicted alpha (the body off the garment "
+            "is exact; the baselines must learn it)",
+            "full-frame error then measures the garment; the garment-region figures are "
+            "reported beside it",
+        )
+    add(
+        "renderer",
+        "SPADE block's shortcut SPADE(I(Z))",
+        "the identity",
+        "fewer parameters; not measured against the paper's",
+    )
+    add(
+        "renderer",
+        "SPADE normalises with batch statistics",
+        "each latent cell over its channels (positional normalisation)",
+        "batch-1 streaming and crops give the same image as training batches",
+    )
+    if r.w_perceptual and not r.vgg_path:
+        add(
+            "training",
+            "perceptual (VGG19) loss",
+            "off: no VGG19 weights file (`--set vgg_path=FILE` turns it on)",
+            "no weights can be downloaded here",
+        )
+    weights = {k: getattr(r, k) for k in PAPER_LOSS}
+    if weights != PAPER_LOSS:
+        add(
+            "training",
+            _losses_of(PAPER_LOSS),
+            _losses_of(weights),
+            "at the quick preset's steps the full adversarial weights cost pixel error "
+            "(the quick preset's comment in pipeline/config.py)",
+        )
+    if (r.lr_g, r.lr_d) != (PAPER_LR["lr_g"], PAPER_LR["lr_d"]) or r.lr_decay_from < 1.0:
+        add(
+            "training",
+            f"Adam {_schedule(PAPER_LR['lr_g'], 1.0)} (D {PAPER_LR['lr_d']:g})",
+            f"{_schedule(r.lr_g, r.lr_decay_from)} (D {r.lr_d:g})",
+            "a few hundred steps: measured in `lr_decay_from`'s docstring",
+        )
+    return rows
+
+
+def _losses_of(weights: dict) -> str:
+    return (
+        f"L1 {weights['w_l1']:g}, perceptual {weights['w_perceptual']:g}, "
+        f"feature matching {weights['w_fm']:g}, GAN {weights['w_gan']:g}"
+    )
+
+
+def method_budgets(config: PipelineConfig) -> list[MethodBudget]:
+    """What ours and each baseline of ``config`` train with (parameters counted on a fresh
+    model of the project's configuration)."""
+    from training.baselines import build_model
+    from training.renderer.model import RenderNet
+
+    def count(model) -> int:
+        return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+    r = renderer_config(config)
+    rows = [
+        MethodBudget(
+            "ours",
+            count(RenderNet(r)),
+            _texture(r.texture_sizes, r.texture_channels),
+            r.steps,
+            r.batch_size,
+            _schedule(r.lr_g, r.lr_decay_from),
+            _losses(r),
+            "real background pasted by a predicted alpha"
+            if r.blend_output
+            else "learned from the background image",
+        )
+    ]
+    for kind in config.baselines:
+        b = baseline_config(config, kind)
+        sizes = getattr(b, "texture_sizes", None)
+        rows.append(
+            MethodBudget(
+                kind,
+                count(build_model(b)),
+                _texture(sizes, b.texture_channels) if sizes else "-",
+                b.steps,
+                b.batch_size,
+                _schedule(b.lr_g, b.lr_decay_from),
+                _losses(b),
+                "learned from the background image",
+            )
+        )
+    return rows
+
+
+def deviations_markdown(rows: list[Deviation]) -> str:
+    """:func:`deviations`' rows as a Markdown table."""
+    lines = ["| part | the paper | here | why |", "| --- | --- | --- | --- |"]
+    lines += [f"| {d.part} | {d.paper} | {d.here} | {d.why} |" for d in rows]
+    return "\n".join(lines)
+
+
+def methods_markdown(rows: list[MethodBudget]) -> str:
+    """:func:`method_budgets`' rows as a Markdown table."""
+    lines = [
+        "| method | parameters | neural texture | steps x batch | learning rate (G) | losses | "
+        "background |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    lines += [
+        f"| {m.method} | {m.parameters / 1e6:.2f} M | {m.texture} | {m.steps} x {m.batch} | "
+        f"{m.learning_rate} | {m.losses} | {m.background} |"
+        for m in rows
+    ]
+    return "\n".join(lines)
+
+
+def as_json(config: PipelineConfig) -> dict:
+    """Both tables for ``report.json`` (``deviations``, ``methods``: lists of the records'
+    fields)."""
+    return {
+        "deviations": [asdict(d) for d in deviations(config)],
+        "methods": [asdict(m) for m in method_budgets(config)],
+    }
+
+
+def from_json(data: dict) -> tuple[list[Deviation], list[MethodBudget]]:
+    """Inverse of :func:`as_json`."""
+    return (
+        [Deviation(**d) for d in data["deviations"]],
+        [MethodBudget(**m) for m in data["methods"]],
+    )

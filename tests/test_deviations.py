@@ -1,0 +1,64 @@
+"""The deviations from the paper and what each method got: computed from the resolved
+configurations, in the smoke report, and the README's copy of the quick preset's tables is
+what the code computes today."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+from pipeline.config import PRESETS
+from pipeline.deviations import (
+    deviations,
+    deviations_markdown,
+    from_json,
+    method_budgets,
+    methods_markdown,
+)
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_readme_tables_are_the_quick_presets():
+    text = README.read_text()
+    quick = PRESETS["quick"]
+    assert deviations_markdown(deviations(quick)) in text
+    assert methods_markdown(method_budgets(quick)) in text
+
+
+def test_rows_follow_the_settings():
+    quick = PRESETS["quick"]
+    parts = [d.part for d in deviations(quick)]
+    assert parts.count("data") == 3  # frames, views, image size
+    # the paper's sizes and weights leave only what no setting changes
+    paper = [d.paper for d in deviations(PRESETS["paper"])]
+    assert not any(
+        p.startswith(("one 850", "10 random", "512 px", "neural texture")) for p in paper
+    )
+    assert "SPADE block's shortcut SPADE(I(Z))" in paper
+    # full adversarial weights: the loss row goes; a simulated target changes the ground truth
+    full = replace(quick, renderer_overrides={}, target_mode="simulate")
+    rows = {d.paper: d.here for d in deviations(full)}
+    assert "L1 10, perceptual 10, feature matching 5, GAN 0.5" not in rows
+    assert rows["the detailed garment simulated (Marvelous Designer)"].startswith("simulated")
+
+
+def test_methods_count_their_parameters():
+    budgets = {m.method: m for m in method_budgets(PRESETS["quick"])}
+    assert set(budgets) == {"ours", "pix2pix", "dnr", "dnr-gan"}
+    assert budgets["ours"].texture.endswith("x 16 ch") and budgets["dnr"].texture.endswith("x 8 ch")
+    assert budgets["pix2pix"].texture == "-"
+    assert all(m.parameters > 100_000 and m.steps == 600 for m in budgets.values())
+    assert budgets["dnr"].parameters == budgets["dnr-gan"].parameters
+
+
+def test_the_report_carries_both_tables(smoke_project):
+    import json
+
+    report = json.loads((smoke_project / "report.json").read_text())
+    rows, methods = from_json(report["against_the_paper"])
+    assert rows == deviations(PRESETS["smoke"])
+    assert [m.method for m in methods] == ["ours", *PRESETS["smoke"].baselines]
+    md = (smoke_project / "report.md").read_text()
+    assert "## Deviations from the paper" in md and deviations_markdown(rows) in md
+    assert "## What each method got" in md and methods_markdown(methods) in md
