@@ -138,6 +138,11 @@ class PipelineConfig:
     (``dng train joint2coarse --set dropout=0.2``)."""
     seed: int = 0
     """Seed of everything random in training."""
+    loader_workers: int = 0
+    """DataLoader worker processes that load the training batches of the renderer and the
+    baselines ahead of each step (``training.loader``); the batches, hence the weights, are the
+    same for any count. 0 on a small CPU machine, where the workers would take the cores the
+    step itself needs; give a GPU machine a few (``dng train renderer P --workers 4``)."""
     torch_threads: int = 1
     """CPU threads torch uses for training and inference. One is the robust choice on a small
     machine: when anything else runs beside it, more threads spin against each other (measured

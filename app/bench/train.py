@@ -4,9 +4,9 @@ share of each step spent waiting for data.
 Each row trains the renderer of a preset (random initial weights) for a few steps with the
 studio's own training step (``training.renderer.train._Trainer.train_step``: generator,
 temporal discriminator, L1, feature matching, GAN; the perceptual loss when its VGG file is
-there; the config's mixed precision on CUDA), fed by a ``torch.utils.data.DataLoader`` with
-``--workers`` processes and pinned memory on CUDA, batches copied to the device without
-blocking.
+there; ``--precision``, by default bf16 on CUDA and fp32 on the CPU), fed as the trainers are
+(``training.loader.batches``: a ``torch.utils.data.DataLoader`` with ``--workers`` processes and
+pinned memory on CUDA), batches copied to the device without blocking.
 
 The batches are **synthetic**: random tensors of exactly the shapes of the data set's samples
 (frames t-1, t, t+1 of UV (2), motion features (95), proxy mask, target, background and target
@@ -62,43 +62,49 @@ class ShapeDataset:
 
 
 def measure_one(
-    preset: str, size: int, batch: int, device: str, steps: int, workers: int, out_dir
+    preset: str,
+    size: int,
+    batch: int,
+    device: str,
+    steps: int,
+    workers: int,
+    out_dir,
+    precision: str = "auto",
 ) -> dict:
     """Train ``steps`` timed steps (after :data:`WARMUP`); one row."""
+    import functools
     import resource
     from dataclasses import replace
 
     import torch
 
     from app.bench.render import device_name
+    from training.loader import batches
     from training.renderer import PRESETS
-    from training.renderer.data import RenderBatch
-    from training.renderer.train import _Trainer
+    from training.renderer.train import _Trainer, collate_samples
 
     cuda = str(device).startswith("cuda")
     dev = torch.device(device)
-    config = replace(PRESETS[preset], batch_size=batch)
+    config = replace(PRESETS[preset], batch_size=batch, precision=precision)
     n = batch * (steps + WARMUP)
     data = ShapeDataset(n, size, config.motion_channels)
     trainer = _Trainer(
         data, config, out_dir, device=dev, steps=steps + WARMUP, init_from=None, trainable="all"
     )
-    loader = torch.utils.data.DataLoader(
-        data, batch_size=batch, shuffle=False, num_workers=workers, pin_memory=cuda,
-        drop_last=True, persistent_workers=False,
+    feed = batches(
+        data, trainer.order, steps + WARMUP, batch,
+        functools.partial(collate_samples, motion_channels=config.motion_channels),
+        workers=workers, pin_memory=cuda,
     )  # fmt: skip
     sync = torch.cuda.synchronize if cuda else (lambda: None)
     if cuda:
         torch.cuda.reset_peak_memory_stats(dev)
     waits, totals = [], []
-    it = iter(loader)
     for step in range(steps + WARMUP):
         sync()
         t0 = time.perf_counter()
-        sample = next(it)
-        batch_dev = RenderBatch.from_dict(
-            {k: v.to(dev, non_blocking=True) for k, v in sample.items()}, config.motion_channels
-        )
+        item, trainer.order = next(feed)
+        batch_dev = item.to(dev, non_blocking=True)
         t1 = time.perf_counter()
         trainer.train_step(batch_dev)
         trainer.step += 1
@@ -121,7 +127,7 @@ def measure_one(
         "device_name": device_name(device),
         "torch": torch.__version__,
         "data": "synthetic (shapes of the data set's samples)",
-        "mixed_precision": "fp16" if trainer.amp else "off",
+        "precision": trainer.precision,
         "perceptual": trainer.perceptual is not None,
         "steps": steps,
         "ms_per_step": 1e3 * step_s,
@@ -135,7 +141,7 @@ def measure_one(
 
 
 HEADER = (
-    f"{'preset':>7} {'size':>5} {'batch':>5} {'wkr':>3} {'amp':>4} {'ms/step':>8} "
+    f"{'preset':>7} {'size':>5} {'batch':>5} {'wkr':>3} {'prec':>4} {'ms/step':>8} "
     f"{'steps/s':>7} {'img/s':>6} {'wait':>6} {'peak MiB':>9} {'load':>5}  device / torch"
 )
 
@@ -143,7 +149,7 @@ HEADER = (
 def format_row(r: dict) -> str:
     return (
         f"{r['preset']:>7} {r['size']:>5} {r['batch']:>5} {r['workers']:>3} "
-        f"{r['mixed_precision']:>4} {r['ms_per_step']:>8.1f} {r['steps_per_s']:>7.2f} "
+        f"{r['precision']:>4} {r['ms_per_step']:>8.1f} {r['steps_per_s']:>7.2f} "
         f"{r['images_per_s']:>6.2f} {r['wait_share']:>6.1%} {r['peak_memory_mib']:>9.0f} "
         f"{r['load_average']:>5.2f}  {r['device_name']} / torch {r['torch']}"
     )
@@ -151,6 +157,7 @@ def format_row(r: dict) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from app.bench import add_output_arguments
+    from training.renderer.config import PRECISIONS
 
     add_output_arguments(parser)
     parser.add_argument("--device", default="cpu", help="cpu or cuda[:i]")
@@ -166,6 +173,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--steps", type=int, default=None, help="timed steps (default 4 / 20)")
     parser.add_argument("--workers", type=int, default=2, help="DataLoader worker processes")
+    parser.add_argument(
+        "--precision", nargs="+", default=["auto"], choices=PRECISIONS,
+        help="training arithmetic (RendererConfig.precision; auto: bf16 on CUDA, fp32 on CPU)",
+    )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -201,10 +212,13 @@ def run(args: argparse.Namespace) -> int:
     say(HEADER)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for b in batches:
-            row = measure_one(preset, size, b, args.device, steps, args.workers, Path(tmp))
-            rows.append(row)
-            say(format_row(row))
+        for precision in args.precision:
+            for b in batches:
+                row = measure_one(
+                    preset, size, b, args.device, steps, args.workers, Path(tmp), precision
+                )
+                rows.append(row)
+                say(format_row(row))
     table = {"bench": "train", "device": args.device, "torch": torch.__version__, "rows": rows}
     out = Path(args.out)
     write_json(out / "train.json", table)

@@ -42,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=("sim", "joint2coarse"),
         help="proxy to train on: simulated (default) or Joint2Coarse's prediction",
     )
+    _add_workers(r)
     _add_set(r, "renderer", "--set w_gan=0 --set w_fm=0")
     r.set_defaults(handler=run_renderer)
     b = what.add_parser(
@@ -54,8 +55,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("project", help="project folder (made by dng demo)")
     b.add_argument("--kinds", nargs="+", help="baselines to train (default: the project's)")
+    _add_workers(b)
     _add_set(b, "baseline", "--set lr_decay_from=0.5")
     b.set_defaults(handler=run_baselines)
+
+
+def _add_workers(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help=(
+            "DataLoader worker processes loading batches ahead, for this run (default: the "
+            "project's loader_workers, 0); the trained weights are the same for any count"
+        ),
+    )
 
 
 def _add_set(parser: argparse.ArgumentParser, what: str, example: str) -> None:
@@ -147,12 +160,25 @@ def parse_setting(item: str) -> tuple[str, object]:
         return key, text
 
 
+def _with_workers(args: argparse.Namespace, project, config):
+    """``--workers`` for this run only (a property of the machine, not kept in the project)."""
+    from dataclasses import replace
+
+    from core.errors import InputError
+
+    if args.workers is None:
+        return project, config
+    if args.workers < 0:
+        raise InputError(f"--workers must be at least 0, got {args.workers}")
+    return project, replace(config, loader_workers=args.workers)
+
+
 def run_renderer(args: argparse.Namespace) -> int:
     import json
 
     from pipeline.stages.renderer import stage_renderer
 
-    project, config = _config_with(args)
+    project, config = _with_workers(args, *_config_with(args))
     report = stage_renderer(project, config, print)
     keep = ("steps", "seconds_per_step", "skipped_steps", "perceptual", "first", "last")
     print(json.dumps({k: report[k] for k in keep}, indent=1))
@@ -165,7 +191,7 @@ def run_baselines(args: argparse.Namespace) -> int:
 
     from pipeline.stages.baselines import stage_baselines
 
-    project, config = _config_with(args, "baseline")
+    project, config = _with_workers(args, *_config_with(args, "baseline"))
     reports = stage_baselines(project, config, print)
     print(json.dumps({k: {"steps": r["steps"], "seconds_per_step": r["seconds_per_step"]}
                       for k, r in reports.items()}, indent=1))  # fmt: skip

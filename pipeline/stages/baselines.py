@@ -31,7 +31,9 @@ def stage_baseline(
         torch.set_num_threads(config.torch_threads)
         data = GarmentDataset(project.root, source=config.renderer_source)
         start = time.perf_counter()
-        result = train_baseline(kind, data, out, cfg, progress=progress)
+        result = train_baseline(
+            kind, data, out, cfg, progress=progress, workers=config.loader_workers
+        )
         seconds = time.perf_counter() - start
         rows = read_loss_log(result.log_path)
         plot_losses(rows, out / "loss.png", f"baseline {kind}")

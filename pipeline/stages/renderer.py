@@ -55,7 +55,7 @@ def stage_renderer(
         torch.set_num_threads(config.torch_threads)
         data = GarmentDataset(project.root, source=config.renderer_source)
         start = time.perf_counter()
-        result = train_renderer(data, out, cfg, progress=progress)
+        result = train_renderer(data, out, cfg, progress=progress, workers=config.loader_workers)
         seconds = time.perf_counter() - start
         rows = read_loss_log(result.log_path)
         plot_losses(rows, out / "loss.png", f"neural renderer ({config.renderer_preset}, {stage})")

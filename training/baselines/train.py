@@ -36,6 +36,7 @@ from training.baselines.common import BaselineConfig, BaselineModel, RendererAda
 from training.baselines.dnr import DNR_GAN_PRESETS, DNR_PRESETS, DeferredNeuralRenderer, DNRConfig
 from training.baselines.pix2pix import PIX2PIX_PRESETS, Pix2Pix, Pix2PixConfig
 from training.csvlog import append_rows, truncate_rows
+from training.loader import SampleOrder, batches
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.data import CUR
 from training.schedule import lr_scale, set_lr
@@ -177,6 +178,14 @@ def _dataset_fingerprint(dataset) -> str:
     return dataset_fingerprint(dataset)
 
 
+def collate_samples(samples: list[dict]) -> dict[str, torch.Tensor]:
+    """Samples of the data set -> one batch (in a DataLoader worker when there are any)."""
+    try:
+        return torch.utils.data.default_collate(samples)
+    except (RuntimeError, TypeError) as exc:
+        raise InputError(f"data set items do not collate: {exc}") from None
+
+
 def _adam(params, lr: float, betas, device: torch.device) -> torch.optim.Adam:
     """Adam, fused on CPU and CUDA (4x faster than the loop on a large neural texture)."""
     return torch.optim.Adam(params, lr=lr, betas=tuple(betas), fused=device.type in ("cpu", "cuda"))
@@ -215,29 +224,22 @@ class _Trainer:
         )
         if self.perceptual is not None:
             self.perceptual.to(device)
-        self.shuffle = torch.Generator().manual_seed(config.seed + 1)
-        self.perm = torch.randperm(len(dataset), generator=self.shuffle)
-        self.pos = self.step = self.epoch = self.skipped = self.count = 0
+        self.order = SampleOrder.start(len(dataset), config.seed + 1)
+        self.step = self.skipped = self.count = 0
         self.sums = dict.fromkeys(_LOSSES, 0.0)
         self.pending_rows: list[list] = []
         self.resumed_at_step = 0
         self.t0 = time.perf_counter()
         self.elapsed = 0.0
 
-    def next_batch(self) -> dict[str, torch.Tensor]:
-        b = self.config.batch_size
-        if self.pos + b > len(self.perm):
-            self.perm = torch.randperm(len(self.dataset), generator=self.shuffle)
-            self.pos = 0
-            self.epoch += 1
-        idx = self.perm[self.pos : self.pos + b].tolist()
-        self.pos += b
-        samples = [self.dataset[i] for i in idx]
-        try:
-            batch = torch.utils.data.default_collate(samples)
-        except (RuntimeError, TypeError) as exc:
-            raise InputError(f"data set items do not collate: {exc}") from None
-        return self.model.check(batch, ("target",))
+    def feed(self, steps: int, workers: int = 0):
+        """The next ``steps`` checked batches and the sample order after each
+        (:func:`training.loader.batches`)."""
+        for item, order in batches(
+            self.dataset, self.order, steps, self.config.batch_size, collate_samples,
+            workers=workers, pin_memory=self.device.type == "cuda",
+        ):  # fmt: skip
+            yield self.model.check(item, ("target",)), order
 
     def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float] | None:
         """One step; the losses, or None when the guard skipped it."""
@@ -305,7 +307,7 @@ class _Trainer:
     def log_row(self) -> dict[str, float]:
         n = max(self.count, 1)
         means = {k: v / n for k, v in self.sums.items()}
-        row: list = [self.step, self.epoch]
+        row: list = [self.step, self.order.epoch]
         for k in _LOSSES:
             if self.count == 0:
                 row.append("")
@@ -335,15 +337,15 @@ class _Trainer:
             "opt_g": self.opt_g.state_dict(),
             "opt_d": None if self.opt_d is None else self.opt_d.state_dict(),
             "step": self.step,
-            "epoch": self.epoch,
-            "perm": self.perm,
-            "pos": self.pos,
+            "epoch": self.order.epoch,
+            "perm": self.order.perm,
+            "pos": self.order.pos,
             "skipped": self.skipped,
             "sums": self.sums,
             "count": self.count,
             "elapsed": self.elapsed + time.perf_counter() - self.t0,
             "torch_rng": torch.get_rng_state(),
-            "shuffle_rng": self.shuffle.get_state(),
+            "shuffle_rng": self.order.rng,
         }
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(payload, tmp)
@@ -372,15 +374,14 @@ class _Trainer:
             self.disc.load_state_dict(payload["discriminator"])
             self.opt_d.load_state_dict(payload["opt_d"])
         self.step = self.resumed_at_step = int(payload["step"])
-        self.epoch = int(payload["epoch"])
-        self.perm = payload["perm"]
-        self.pos = int(payload["pos"])
+        self.order = SampleOrder(
+            payload["perm"], int(payload["pos"]), int(payload["epoch"]), payload["shuffle_rng"]
+        )
         self.skipped = int(payload["skipped"])
         self.sums = dict(payload["sums"])
         self.count = int(payload["count"])
         self.elapsed = float(payload["elapsed"])
         torch.set_rng_state(payload["torch_rng"])
-        self.shuffle.set_state(payload["shuffle_rng"])
         truncate_rows(self.log_path, LOG_COLUMNS, self.step)
 
 
@@ -394,6 +395,7 @@ def train_baseline(
     progress: bool = True,
     device: str | torch.device = "cpu",
     callback: Callable[[int, dict[str, float] | None], None] | None = None,
+    workers: int = 0,
 ) -> BaselineTrainResult:
     """Train a baseline, resuming from ``out_dir`` when a matching checkpoint is there.
 
@@ -409,6 +411,8 @@ def train_baseline(
     device : "cpu" or "cuda[:i]"
     callback : called after each step with (step, losses or None if skipped); raising from it
         stops the run, which resumes from the last checkpoint
+    workers : DataLoader worker processes that load batches ahead (:func:`training.loader.
+        batches`); 0 loads each in this process. The batches, hence the weights, are the same.
 
     Returns
     -------
@@ -434,8 +438,9 @@ def train_baseline(
         if cfg.w_perceptual > 0 and tr.perceptual is None and tr.step < n_steps:
             tqdm.write(f"{kind}: perceptual loss off (no VGG19 weights file in config.vgg_path)")
         with tqdm(total=n_steps, initial=tr.step, disable=not progress, desc=kind) as bar:
-            while tr.step < n_steps:
-                losses = tr.train_step(tr.next_batch())
+            for batch, order in tr.feed(n_steps - tr.step, workers):
+                tr.order = order
+                losses = tr.train_step(batch)
                 tr.step += 1
                 if losses is None:
                     tr.skipped += 1
@@ -511,12 +516,13 @@ def bench(kind: str, steps: int = 10, warmup: int = 3) -> tuple[float, float]:
 
     with tempfile.TemporaryDirectory() as d:
         tr = _Trainer(kind, _Data(), cfg, Path(d), steps, torch.device("cpu"))
+        feed = tr.feed(warmup + steps)
         for _ in range(warmup):
-            tr.train_step(tr.next_batch())
+            tr.train_step(next(feed)[0])
         wall, cpu = [], []
         for _ in range(steps):
             t0, c0 = time.perf_counter(), time.process_time()
-            tr.train_step(tr.next_batch())
+            tr.train_step(next(feed)[0])
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
     return sorted(wall)[steps // 2], sorted(cpu)[steps // 2]

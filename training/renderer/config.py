@@ -13,6 +13,7 @@ from training.schedule import check_decay_from
 #: Channels of the paper's motion features: 19 joints x 5 frames (core.features layout).
 MOTION_CHANNELS = 95
 GAN_MODES = ("hinge", "lsgan")
+PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 
 
 @dataclass(frozen=True)
@@ -106,8 +107,13 @@ class RendererConfig(PlainConfig):
     """Steps between rows of the CSV loss log (means since the last row)."""
     preview_every: int = 200
     """Steps between preview PNGs (prediction | ground truth); 0 turns them off."""
-    mixed_precision: bool = True
-    """Use autocast + GradScaler on CUDA (ignored on CPU, which always trains in float32)."""
+    precision: str = "auto"
+    """Training arithmetic. ``fp32``: float32 everywhere, the reference. ``bf16``: the
+    generator under bfloat16 autocast, on any device (CPU included); the spectral-norm
+    discriminator and every loss stay in float32 (its power iteration is what low precision
+    makes unstable). ``fp16``: the same in float16 with loss scaling, CUDA only. ``auto``:
+    ``bf16`` on CUDA, ``fp32`` elsewhere. ``tests/test_renderer_precision.py`` compares bf16 with
+    fp32."""
 
     def __post_init__(self) -> None:
         positive = (
@@ -147,10 +153,30 @@ class RendererConfig(PlainConfig):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"renderer config {name}={v!r} must be a finite number >= 0")
         check_decay_from(self.lr_decay_from, "renderer")
+        if self.precision not in PRECISIONS:
+            raise InputError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if not 0.0 < self.body_finetune_fraction <= 1.0:
             raise InputError(
                 f"body_finetune_fraction={self.body_finetune_fraction!r} must be in (0, 1]"
             )
+
+    @classmethod
+    def from_dict(cls, data: dict) -> RendererConfig:
+        """As :meth:`PlainConfig.from_dict`; files from before ``precision`` existed hold
+        ``mixed_precision`` (True: ``auto``, False: ``fp32``)."""
+        data = dict(data)
+        if "mixed_precision" in data:
+            old = data.pop("mixed_precision")
+            data.setdefault("precision", "auto" if old else "fp32")
+        return super().from_dict(data)
+
+    def resolved_precision(self, device_type: str) -> str:
+        """``fp32``, ``bf16`` or ``fp16`` on a device of this type (``cpu``, ``cuda``)."""
+        if self.precision == "auto":
+            return "bf16" if device_type == "cuda" else "fp32"
+        if self.precision == "fp16" and device_type != "cuda":
+            raise InputError("renderer precision fp16 needs CUDA: use bf16 or fp32 on the CPU")
+        return self.precision
 
     @property
     def stride(self) -> int:

@@ -96,8 +96,14 @@ class RenderBatch:
             out[k] = t.float()
         return cls(**out)
 
-    def to(self, device) -> RenderBatch:
-        return RenderBatch(**{k: getattr(self, k).to(device) for k in SAMPLE_KEYS})
+    def to(self, device, non_blocking: bool = False) -> RenderBatch:
+        return RenderBatch(
+            **{k: getattr(self, k).to(device, non_blocking=non_blocking) for k in SAMPLE_KEYS}
+        )
+
+    def pin_memory(self) -> RenderBatch:
+        """Page-locked copies (what a DataLoader with ``pin_memory=True`` calls)."""
+        return RenderBatch(**{k: getattr(self, k).pin_memory() for k in SAMPLE_KEYS})
 
     @property
     def size(self) -> tuple[int, int]:

@@ -21,6 +21,7 @@ nccl on CUDA) and only rank 0 writes files.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import math
 import os
@@ -38,6 +39,7 @@ from core.errors import InputError
 from core.fileio import atomic_path
 from core.shading import contact_sheet, write_png
 from training.csvlog import append_rows, truncate_rows
+from training.loader import SampleOrder, batches
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
@@ -150,8 +152,9 @@ def dataset_fingerprint(dataset) -> str:
     return h.hexdigest()
 
 
-def _collate(dataset, idx: list[int], motion_channels: int) -> RenderBatch:
-    samples = [dataset[i] for i in idx]
+def collate_samples(samples: list[dict], motion_channels: int) -> RenderBatch:
+    """Samples of the data set -> one checked batch (in a DataLoader worker when there are
+    any)."""
     try:
         for s in samples:
             RenderBatch.from_dict(s, motion_channels)
@@ -225,9 +228,11 @@ class _Trainer:
         self.opt_d = torch.optim.Adam(
             self.disc.parameters(), lr=config.lr_d, betas=tuple(config.betas), fused=fused
         )
-        self.amp = config.mixed_precision and device.type == "cuda"
-        self.scaler_g = torch.amp.GradScaler("cuda", enabled=self.amp)
-        self.scaler_d = torch.amp.GradScaler("cuda", enabled=self.amp)
+        self.precision = config.resolved_precision(device.type)
+        self.amp = self.precision != "fp32"
+        scaled = self.precision == "fp16"  # bfloat16 has float32's range: no loss scaling
+        self.scaler_g = torch.amp.GradScaler("cuda", enabled=scaled)
+        self.scaler_d = torch.amp.GradScaler("cuda", enabled=scaled)
         self.perceptual = load_perceptual(config.vgg_path, config.vgg_channels)
         if self.perceptual is not None:
             self.perceptual.to(device)
@@ -237,11 +242,8 @@ class _Trainer:
             self.d_ddp = torch.nn.parallel.DistributedDataParallel(self.disc, device_ids=ids)
         else:
             self.g_ddp, self.d_ddp = self.net, self.disc
-        self.shuffle = torch.Generator().manual_seed(config.seed + 1)
-        self.perm = torch.randperm(len(dataset), generator=self.shuffle)
-        self.pos = 0
+        self.order = SampleOrder.start(len(dataset), config.seed + 1)
         self.step = 0
-        self.epoch = 0
         self.skipped = 0
         self.sums = dict.fromkeys(LOG_COLUMNS[2:8], 0.0)
         self.count = 0
@@ -252,20 +254,12 @@ class _Trainer:
 
     # -- one step ------------------------------------------------------------------------------
 
-    def next_indices(self) -> list[int]:
-        g = self.config.batch_size * self.world
-        if self.pos + g > len(self.perm):
-            self.perm = torch.randperm(len(self.dataset), generator=self.shuffle)
-            self.pos = 0
-            self.epoch += 1
-        idx = self.perm[self.pos : self.pos + g].tolist()
-        self.pos += g
-        b = self.config.batch_size
-        return idx[self.rank * b : (self.rank + 1) * b]
-
     def _autocast(self):
+        """The generator's arithmetic (``config.precision``); the discriminator and the losses
+        always run in float32."""
         if self.amp:
-            return torch.autocast("cuda", dtype=torch.float16)
+            dtype = torch.bfloat16 if self.precision == "bf16" else torch.float16
+            return torch.autocast(self.device.type, dtype=dtype)
         return contextlib.nullcontext()
 
     def train_step(self, batch: RenderBatch) -> dict[str, float] | None:
@@ -286,8 +280,9 @@ class _Trainer:
         fake_pairs_d = torch.cat([torch.cat([fd, prev], 1), torch.cat([nxt, fd], 1)])
         self.opt_d.zero_grad(set_to_none=True)
         self.opt_g.zero_grad(set_to_none=True)
-        with self._autocast():
-            logits, _ = self.d_ddp(torch.cat([real_pairs, fake_pairs_d]))
+        # The spectral-norm discriminator in float32 whatever the precision: its power
+        # iteration is what low precision would make unstable.
+        logits, _ = self.d_ddp(torch.cat([real_pairs, fake_pairs_d]))
         lr, lf = logits.float().chunk(2)
         loss_d = gan_d_loss(lr, lf, cfg.gan_mode)
         self.scaler_d.scale(loss_d).backward()
@@ -297,10 +292,9 @@ class _Trainer:
             p.requires_grad_(False)
         try:
             fake_pairs = torch.cat([torch.cat([fake, prev], 1), torch.cat([nxt, fake], 1)])
-            with self._autocast():
-                logits_f, feats_f = self.disc(fake_pairs)
-                with torch.no_grad():
-                    _, feats_r = self.disc(real_pairs)
+            logits_f, feats_f = self.disc(fake_pairs)
+            with torch.no_grad():
+                _, feats_r = self.disc(real_pairs)
             l1 = F.l1_loss(fake, real_t)
             perc = (
                 self.perceptual(fake, real_t) if self.perceptual is not None else fake.new_zeros(())
@@ -314,7 +308,7 @@ class _Trainer:
                 p.requires_grad_(True)
 
         finite = torch.isfinite(loss_d) & torch.isfinite(loss_g)
-        if not self.amp:  # with AMP, the scalers skip steps with inf/NaN gradients themselves
+        if not self.scaler_g.is_enabled():  # fp16's scalers skip non-finite steps themselves
             grads = [
                 p.grad for p in (*self.g_params, *self.disc.parameters()) if p.grad is not None
             ]
@@ -345,7 +339,7 @@ class _Trainer:
     def log_row(self) -> dict[str, float]:
         n = max(self.count, 1)
         means = {k: v / n for k, v in self.sums.items()}
-        row = [self.step, self.epoch]
+        row = [self.step, self.order.epoch]
         for k in LOG_COLUMNS[2:8]:
             if self.count == 0:
                 row.append("")
@@ -372,7 +366,7 @@ class _Trainer:
     def preview(self) -> None:
         if self.rank != 0:
             return
-        batch = _collate(self.dataset, [0], self.config.motion_channels).to(self.device)
+        batch = collate_samples([self.dataset[0]], self.config.motion_channels).to(self.device)
         self.net.eval()
         with torch.no_grad():
             fake, a = self.net(**batch.generator_inputs(self.config.use_motion))
@@ -399,15 +393,15 @@ class _Trainer:
             "scaler_g": self.scaler_g.state_dict(),
             "scaler_d": self.scaler_d.state_dict(),
             "step": self.step,
-            "epoch": self.epoch,
-            "perm": self.perm,
-            "pos": self.pos,
+            "epoch": self.order.epoch,
+            "perm": self.order.perm,
+            "pos": self.order.pos,
             "skipped": self.skipped,
             "sums": self.sums,
             "count": self.count,
             "elapsed": self.elapsed + time.perf_counter() - self.t0,
             "torch_rng": torch.get_rng_state(),
-            "shuffle_rng": self.shuffle.get_state(),
+            "shuffle_rng": self.order.rng,
         }
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(payload, tmp)
@@ -438,15 +432,14 @@ class _Trainer:
         self.scaler_g.load_state_dict(payload["scaler_g"])
         self.scaler_d.load_state_dict(payload["scaler_d"])
         self.step = self.resumed_at_step = int(payload["step"])
-        self.epoch = int(payload["epoch"])
-        self.perm = payload["perm"]
-        self.pos = int(payload["pos"])
+        self.order = SampleOrder(
+            payload["perm"], int(payload["pos"]), int(payload["epoch"]), payload["shuffle_rng"]
+        )
         self.skipped = int(payload["skipped"])
         self.sums = dict(payload["sums"])
         self.count = int(payload["count"])
         self.elapsed = float(payload["elapsed"])
         torch.set_rng_state(payload["torch_rng"])
-        self.shuffle.set_state(payload["shuffle_rng"])
         self.truncate_log()
 
 
@@ -461,6 +454,7 @@ def train_renderer(
     trainable: str = "all",
     progress: bool = True,
     callback: Callable[[int, dict[str, float] | None], None] | None = None,
+    workers: int = 0,
 ) -> RendererTrainResult:
     """Train (or fine-tune) the neural renderer, resuming from ``out_dir`` when possible.
 
@@ -478,6 +472,9 @@ def train_renderer(
     progress : show a tqdm bar (rank 0 only)
     callback : called after each step with (step, losses or None if skipped); raising from it
         stops the run, which resumes from the last checkpoint
+    workers : DataLoader worker processes that load batches ahead (:func:`training.loader.
+        batches`; pinned memory on CUDA); 0 loads each in this process. The batches, hence the
+        weights, are the same either way.
 
     Returns
     -------
@@ -517,9 +514,14 @@ def train_renderer(
             total=n_steps, initial=tr.step, disable=not progress or tr.rank != 0, desc="renderer"
         )
         with bar:
-            while tr.step < n_steps:
-                batch = _collate(dataset, tr.next_indices(), cfg.motion_channels).to(device)
-                losses = tr.train_step(batch)
+            feed = batches(
+                dataset, tr.order, n_steps - tr.step, cfg.batch_size,
+                functools.partial(collate_samples, motion_channels=cfg.motion_channels),
+                workers=workers, pin_memory=device.type == "cuda", world=tr.world, rank=tr.rank,
+            )  # fmt: skip
+            for item, order in feed:
+                tr.order = order
+                losses = tr.train_step(item.to(device, non_blocking=True))
                 tr.step += 1
                 if losses is None:
                     tr.skipped += 1
