@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from core.fileio import atomic_open, write_json
+from core.progress import StageEta
 from core.project import RECORD_NAME, Project
 from pipeline.config import (
     PipelineConfig,
@@ -87,37 +88,32 @@ class _Progress:
     """Stage headers with elapsed time and an estimate of the time left.
 
     ``costs`` are the expected seconds of the stages in order (:func:`stage_costs`). The time
-    left is the remaining stages' cost at the pace of the stages that ran so far (a stage
-    reused from an earlier run, done in under a tenth of its cost, does not set the pace).
+    left is :class:`core.progress.StageEta`'s: the remaining stages' cost at the pace of the
+    stages that ran so far (a stage reused from an earlier run, done in under a tenth of its
+    cost, does not set the pace); the nominal pace before any ran.
     """
 
     def __init__(self, costs: list[float], out=sys.stderr, clock=time.perf_counter):
-        self.costs, self.done, self.out, self.clock = list(costs), 0, out, clock
-        self.total = len(self.costs)
-        self.start = clock()
+        self.eta = StageEta(costs, clock, default_pace=1.0, reused_below=0.1)
+        self.out, self.clock = out, clock
+        self.start = self.eta.start
         self.stage_times: dict[str, float] = {}
-        self.ran_seconds = self.ran_cost = 0.0
 
     def log(self, message: str) -> None:
         print(message, file=self.out, flush=True)
 
     def seconds_left(self) -> float:
-        pace = self.ran_seconds / self.ran_cost if self.ran_cost else 1.0
-        return pace * sum(self.costs[self.done :])
+        return self.eta.seconds_left()
 
     def stage(self, name: str, fn: Callable[[], object]) -> object:
         elapsed = self.clock() - self.start
         left = f", about {self.seconds_left() / 60:.1f} min left"
-        self.log(f"[{self.done + 1}/{self.total}] {name} ({elapsed / 60:.1f} min in{left})")
+        self.log(f"[{self.eta.done + 1}/{self.eta.total}] {name} ({elapsed / 60:.1f} min in{left})")
         t0 = self.clock()
         result = fn()
         seconds = self.clock() - t0
         self.stage_times[name] = seconds
-        cost = self.costs[self.done] if self.done < self.total else 0.0
-        if seconds >= 0.1 * cost:
-            self.ran_seconds += seconds
-            self.ran_cost += cost
-        self.done += 1
+        self.eta.stage_done(seconds)
         return result
 
 

@@ -322,22 +322,16 @@ class Playback:
         radius, the middle of its range by default); azimuth 0 looks at the front (+Z);
         the target moves with the root's horizontal position at frame t.
         """
-        from core.camera import intrinsics_from_fov, look_at, orbit_eye
+        from core.camera import follow_camera
         from pipeline.stages.dataset import dataset_rig
 
         t = self._frame(t)
         lo, hi = self.garment_box()
         rig = dataset_rig(self.config, np.stack([lo, hi]))
-        root = self.motion.root_positions[t]
-        target = np.array([root[0], rig.target[1], root[2]], np.float64)
-        eye = orbit_eye(
-            target,
-            rig.radius_range[0] * distance_scale,
-            np.radians(azimuth_deg),
-            np.radians(elevation_deg),
-        )
-        K = intrinsics_from_fov(rig.fov_y_deg, int(width), int(height))
-        return Camera(K, look_at(eye, target), int(width), int(height))
+        return follow_camera(
+            self.motion.root_positions[t], rig.target[1], rig.radius_range[0], rig.fov_y_deg,
+            width, height, azimuth_deg, elevation_deg, distance_scale,
+        )  # fmt: skip
 
     def set_backdrop(self, image: np.ndarray | None) -> None:
         """Composite the body over ``image`` ((H, W, 3) uint8, resized/cropped to each
