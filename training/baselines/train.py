@@ -37,6 +37,7 @@ from training.baselines.dnr import DNR_GAN_PRESETS, DNR_PRESETS, DeferredNeuralR
 from training.baselines.pix2pix import PIX2PIX_PRESETS, Pix2Pix, Pix2PixConfig
 from training.csvlog import append_rows, truncate_rows
 from training.loader import SampleOrder, batches
+from training.loop import run_steps
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.data import CUR
 from training.schedule import lr_scale, set_lr
@@ -438,28 +439,12 @@ def train_baseline(
         if cfg.w_perceptual > 0 and tr.perceptual is None and tr.step < n_steps:
             tqdm.write(f"{kind}: perceptual loss off (no VGG19 weights file in config.vgg_path)")
         with tqdm(total=n_steps, initial=tr.step, disable=not progress, desc=kind) as bar:
-            for batch, order in tr.feed(n_steps - tr.step, workers):
-                tr.order = order
-                losses = tr.train_step(batch)
-                tr.step += 1
-                if losses is None:
-                    tr.skipped += 1
-                    tqdm.write(f"{kind}: step {tr.step} skipped (non-finite loss or gradient)")
-                else:
-                    for k, v in losses.items():
-                        tr.sums[k] += v
-                    tr.count += 1
-                done = tr.step == n_steps
-                if tr.step % cfg.log_every == 0 or done:
-                    means = tr.log_row()
-                    bar.set_postfix({"g": f"{means['loss_g']:.4g}", "skipped": tr.skipped},
-                                    refresh=False)  # fmt: skip
-                bar.update(1)
-                if not done and tr.step % cfg.checkpoint_every == 0:
-                    tr.save_checkpoint()
-                if callback is not None:
-                    callback(tr.step, losses)
-        tr.save_checkpoint()
+            run_steps(
+                tr, tr.feed(n_steps - tr.step, workers), n_steps, bar, name=kind,
+                log_every=cfg.log_every, checkpoint_every=cfg.checkpoint_every,
+                postfix=lambda m: {"g": f"{m['loss_g']:.4g}", "skipped": tr.skipped},
+                callback=callback, say=tqdm.write,
+            )  # fmt: skip
     tr.model.eval()
     save_baseline(tr.model_path, tr.model)
     return BaselineTrainResult(

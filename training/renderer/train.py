@@ -40,6 +40,7 @@ from core.fileio import atomic_path
 from core.shading import contact_sheet, write_png
 from training.csvlog import append_rows, truncate_rows
 from training.loader import SampleOrder, batches
+from training.loop import run_steps
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
@@ -519,36 +520,15 @@ def train_renderer(
                 functools.partial(collate_samples, motion_channels=cfg.motion_channels),
                 workers=workers, pin_memory=device.type == "cuda", world=tr.world, rank=tr.rank,
             )  # fmt: skip
-            for item, order in feed:
-                tr.order = order
-                losses = tr.train_step(item.to(device, non_blocking=True))
-                tr.step += 1
-                if losses is None:
-                    tr.skipped += 1
-                    if tr.rank == 0:
-                        tqdm.write(
-                            f"renderer: step {tr.step} skipped (non-finite loss or gradient)"
-                        )
-                else:
-                    for k, v in losses.items():
-                        tr.sums[k] += v
-                    tr.count += 1
-                done = tr.step == n_steps
-                if tr.step % cfg.log_every == 0 or done:
-                    means = tr.log_row()
-                    bar.set_postfix(
-                        {"g": f"{means['loss_g']:.4g}", "d": f"{means['loss_d']:.4g}",
-                         "skipped": tr.skipped},
-                        refresh=False,
-                    )  # fmt: skip
-                if cfg.preview_every and (tr.step % cfg.preview_every == 0 or done):
-                    tr.preview()
-                bar.update(1)
-                if not done and tr.step % cfg.checkpoint_every == 0:
-                    tr.save_checkpoint()
-                if callback is not None:
-                    callback(tr.step, losses)
-        tr.save_checkpoint()
+            run_steps(
+                tr, ((item.to(device, non_blocking=True), order) for item, order in feed),
+                n_steps, bar, name="renderer", log_every=cfg.log_every,
+                checkpoint_every=cfg.checkpoint_every,
+                postfix=lambda m: {"g": f"{m['loss_g']:.4g}", "d": f"{m['loss_d']:.4g}",
+                                   "skipped": tr.skipped},
+                preview_every=cfg.preview_every, preview=tr.preview, callback=callback,
+                say=tqdm.write if tr.rank == 0 else None,
+            )  # fmt: skip
     tr.net.eval()
     if tr.rank == 0:
         save_model(tr.model_path, tr.net, tr.disc)
