@@ -182,6 +182,23 @@ def test_test_sets_come_from_unseen_cameras(smoke):
         GarmentDataset(out, split="walk")
 
 
+def test_print_config_shows_the_resolved_settings_and_changes_nothing(smoke, capsys):
+    from app.cli import main
+
+    out, report = smoke
+    before = (out / "project.json").read_bytes()
+    assert main(["train", "renderer", str(out), "--print-config", "--set", "w_gan=0.3"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == {**report["renderer"]["config"], "w_gan": 0.3}  # what the report shows
+    assert main(["train", "baselines", str(out), "--print-config"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert set(printed) == set(PRESETS["smoke"].baselines)
+    assert printed["dnr"] == report["baselines"]["dnr"]["config"]
+    assert main(["train", "joint2coarse", str(out), "--print-config"]) == 0
+    assert json.loads(capsys.readouterr().out)["model"] == report["joint2coarse"]["model"]
+    assert (out / "project.json").read_bytes() == before  # nothing saved, nothing trained
+
+
 def test_train_renderer_cli_with_new_settings(smoke, tmp_path):
     import shutil
 

@@ -73,6 +73,15 @@ def _add_workers(parser: argparse.ArgumentParser) -> None:
 
 def _add_set(parser: argparse.ArgumentParser, what: str, example: str) -> None:
     parser.add_argument(
+        "--print-config",
+        action="store_true",
+        help=(
+            f"print the {what} configuration this command would train with (the preset, the "
+            "project's settings and this command's changes, resolved) as JSON, and stop: "
+            "nothing is trained or saved"
+        ),
+    )
+    parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
@@ -84,12 +93,32 @@ def _add_set(parser: argparse.ArgumentParser, what: str, example: str) -> None:
     )
 
 
+def _print_config(args: argparse.Namespace, config, network: str) -> bool:
+    """With ``--print-config``: print the resolved configuration(s) as JSON; True if printed."""
+    import json
+
+    from pipeline.config import baseline_config, joint2coarse_config, renderer_config
+
+    if not args.print_config:
+        return False
+    if network == "renderer":
+        resolved = renderer_config(config).to_dict()
+    elif network == "joint2coarse":
+        resolved = joint2coarse_config(config).to_dict()
+    else:
+        resolved = {kind: baseline_config(config, kind).to_dict() for kind in config.baselines}
+    print(json.dumps(resolved, indent=1))
+    return True
+
+
 def run_joint2coarse(args: argparse.Namespace) -> int:
     import json
 
     from pipeline.stages.joint2coarse import stage_joint2coarse
 
     project, config = _config_with(args, "joint2coarse")
+    if _print_config(args, config, "joint2coarse"):
+        return 0
     report = stage_joint2coarse(project, config, print)
     keys = ("model", "splits", "validation_motions", "motions", "compare")
     print(json.dumps({k: report[k] for k in keys if k in report}, indent=1))
@@ -133,6 +162,8 @@ def _config_with(args: argparse.Namespace, network: str = "renderer"):
     renderer_config(config)
     for kind in config.baselines:
         baseline_config(config, kind)
+    if getattr(args, "print_config", False):
+        return project, config
     if changes:  # later stages (dng eval, the GUI) read the same settings
         settings = project.settings()
         settings["pipeline"] = config.as_params()
@@ -179,6 +210,8 @@ def run_renderer(args: argparse.Namespace) -> int:
     from pipeline.stages.renderer import stage_renderer
 
     project, config = _with_workers(args, *_config_with(args))
+    if _print_config(args, config, "renderer"):
+        return 0
     report = stage_renderer(project, config, print)
     keep = ("steps", "seconds_per_step", "skipped_steps", "perceptual", "first", "last")
     print(json.dumps({k: report[k] for k in keep}, indent=1))
@@ -192,6 +225,8 @@ def run_baselines(args: argparse.Namespace) -> int:
     from pipeline.stages.baselines import stage_baselines
 
     project, config = _with_workers(args, *_config_with(args, "baseline"))
+    if _print_config(args, config, "baseline"):
+        return 0
     reports = stage_baselines(project, config, print)
     print(json.dumps({k: {"steps": r["steps"], "seconds_per_step": r["seconds_per_step"]}
                       for k, r in reports.items()}, indent=1))  # fmt: skip
