@@ -3,8 +3,9 @@
 Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600]
 [--threads 1 2] [--output-basis 256 0] [--model paper ours]``
 
-Our model (``model=ours``: the proxy skinned to the body plus a ridge residual) is timed first,
-streaming and batched, on a synthetic skirt of ``--vertices`` with a random residual.
+Our model (``model=ours``: the proxy skinned to the body plus a residual network) is timed
+first, streaming and batched, on a synthetic skirt of ``--vertices`` with a random residual of
+the config's ``residual_widths`` (``--residual-widths``; none: the linear residual).
 
 Times the paper-sized network (widths at full size for 2048+ vertices) with random weights
 (speed does not depend on what the weights are) and output frames that follow the hips' tilt
@@ -99,7 +100,11 @@ def main() -> None:
     )  # fmt: skip
     parser.add_argument(
         "--model", nargs="+", default=["paper", "ours"], choices=MODELS,
-        help="models to time (ours: the skinned base and ridge residual, model=ours)",
+        help="models to time (ours: the skinned base and the residual, model=ours)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--residual-widths", type=int, nargs="*", default=None,
+        help="ours: hidden widths of the residual (none given: linear); default: the config's",
     )  # fmt: skip
     parser.add_argument(
         "--train-steps", type=int, default=20,
@@ -110,6 +115,8 @@ def main() -> None:
     base = Joint2CoarseConfig()
     if args.encoder_widths:
         base = replace(base, encoder_widths=tuple(args.encoder_widths))
+    if args.residual_widths is not None:
+        base = replace(base, residual_widths=tuple(args.residual_widths))
     joints, root_rot = joint2coarse_inputs(synthetic_walk(args.frames, seed=0))
     print(f"{_load()} before; torch {torch.__version__}, {args.frames} frames per measurement")
     verdict = None
@@ -117,7 +124,8 @@ def main() -> None:
         net = _ours(base, args.vertices)
         print(
             f"== model=ours: Vc={net.n_vertices}, descriptor {net.descriptor_dim}, "
-            f"{net.arrays['coef'].shape[0]} residual features"
+            f"{len(net.arrays['feat_mean'])} residual features, hidden widths "
+            f"{base.residual_widths or 'none (linear)'}"
         )
         for threads in args.threads:
             torch.set_num_threads(threads)
@@ -178,7 +186,7 @@ def main() -> None:
 
 def _ours(base: Joint2CoarseConfig, n_vertices: int) -> BodyResidualModel:
     """Our model for a synthetic skirt of about ``n_vertices`` vertices, with a random residual
-    (speed does not depend on its values)."""
+    of the config's ``residual_widths`` (speed does not depend on its values)."""
     around = 100
     rings = max(2, round(n_vertices / around))
     skel = mannequin_skeleton()
@@ -192,8 +200,12 @@ def _ours(base: Joint2CoarseConfig, n_vertices: int) -> BodyResidualModel:
     arrays = {
         "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,
         "feat_mean": np.zeros(k), "feat_std": np.ones(k),
-        "coef": rng.normal(0.0, 1e-3, (k + 1, 3 * len(skirt))),
     }  # fmt: skip
+    width = k + 1
+    for i, w in enumerate(config.residual_widths):
+        arrays[f"hidden{i}"] = rng.normal(0.0, width**-0.5, (width, w)).astype(np.float32)
+        width = w + 1
+    arrays["coef"] = rng.normal(0.0, 1e-3, (width, 3 * len(skirt))).astype(np.float32)
     return BodyResidualModel(config, d, arrays)
 
 

@@ -1,10 +1,13 @@
-"""Our Joint2Coarse (model=ours): the body-driven base, the ridge residual, save and load, the
-splits of the training library."""
+"""Our Joint2Coarse (model=ours): the body-driven base, the residual (network, or linear by
+ridge), save and load, the torch module, bad model files."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+import torch
 
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.errors import InputError
@@ -23,12 +26,14 @@ from training.joint2coarse.body_model import (
     BodyResidualModel,
     body_rig,
     bone_transforms,
+    hidden_names,
     motion_features,
 )
 from training.joint2coarse.descriptor import canonical_joint_order
 from training.joint2coarse.synthetic import skirt_from_joints, synthetic_clip
 
 OURS = Joint2CoarseConfig(model="ours", ridge=1e-4)
+LINEAR = replace(OURS, residual_widths=())
 
 
 def _rest_skirt() -> np.ndarray:
@@ -96,15 +101,46 @@ def test_base_is_the_rest_proxy_at_rest_and_moves_rigidly_with_the_body(rig):
     assert_close(pitched, rest_vertices @ r.T, atol=1e-5, what="pitched base")
 
 
-def test_ours_fits_the_synthetic_skirt_and_holds_on_an_unseen_walk(trained, clips):
-    res = trained
+@pytest.mark.parametrize("residual", ["network", "linear"])
+def test_ours_fits_the_synthetic_skirt_and_holds_on_an_unseen_walk(
+    residual, trained, clips, rig, tmp_path
+):
+    if residual == "network":
+        res, stage = trained, "residual"
+    else:
+        res, stage = train_joint2coarse(clips, tmp_path, LINEAR, rig=rig), "ridge"
     assert isinstance(res.net, BodyResidualModel) and res.model_path.is_file()
     base = res.baseline.mean_mm
-    assert res.stage_errors["ridge"].mean_mm < 0.2 * base
+    assert res.stage_errors[stage].mean_mm < 0.2 * base
     joints, root_rot, skirt = synthetic_clip(200, 7)  # a walk never trained on
     pred = predict_proxy(res.net, joints, root_rot)
     assert pred.shape == skirt.shape and pred.dtype == np.float32 and np.isfinite(pred).all()
     assert vertex_errors(pred, skirt).mean_mm < 0.2 * base
+
+
+def test_the_network_is_plain_matrices_and_runs_in_torch_as_in_numpy(trained, clips, tmp_path):
+    """The residual network folds into ``hidden0``, ``hidden1`` and ``coef`` (bias rows last);
+    the torch module gives numpy's prediction; a file whose layer shapes do not chain is
+    refused, naming it."""
+    net = trained.net
+    arrays = net.arrays
+    assert hidden_names(arrays) == ["hidden0", "hidden1"]
+    n_features = len(arrays["feat_mean"])
+    assert arrays["hidden0"].shape == (n_features + 1, 256)
+    assert arrays["hidden1"].shape == (257, 256)
+    assert arrays["coef"].shape == (257, net.n_vertices * 3)
+    desc = motion_descriptors(clips[1].joints, clips[1].root_rotations, OURS.window, OURS.stride)
+    desc = desc[0][:50]
+    with torch.no_grad():
+        out = net.to_torch()(torch.from_numpy(desc)).numpy()
+    assert_close(out, net.predict(desc), atol=1e-5, what="torch vs numpy")
+    payload = torch.load(trained.model_path, weights_only=False)
+    payload["state_dict"]["hidden1"] = payload["state_dict"]["hidden1"][:-3]
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    with pytest.raises(InputError, match="hidden1") as err:
+        load_model(bad)
+    assert str(bad) in str(err.value)
 
 
 def test_ours_saves_loads_and_streams_like_the_batch(trained, clips, tmp_path):

@@ -11,15 +11,19 @@ the heading frame, as the sum of
    hips, legs and spine (Kabsch), every other bone's as the hips' rotation followed by the
    swing from there to where the bone points now. So a new pose moves the waistband and the
    front of the skirt with the legs, whatever the training clips were;
-2. a **residual** linear in features of the joints' history: the current pose, the joints'
+2. a **residual** from features of the joints' history: the current pose, the joints'
    velocities and accelerations over several lags (all in the heading frame, so they do not
-   depend on where the body stands or faces), and the square terms of the pelvis's turning rate
-   and speed that drive a skirt's flare (the centrifugal push grows with the square of the
-   turning rate). It is predicted in the hips' frame (so it tilts with the pelvis) and fitted
-   in closed form (ridge regression, ``ridge``) to the simulated proxy minus the base.
+   depend on where the body stands or faces), the pelvis's turning rate over lags up to the
+   whole window (a spin twists and flares a skirt; with its signed square), and the square
+   terms of the turning rate and speed that drive a skirt's flare (the centrifugal push grows
+   with the square of the turning rate). It is predicted in the hips' frame (so it tilts with
+   the pelvis) and fitted to the simulated proxy minus the base, by a small ReLU network
+   (``residual_widths``, trained with torch in seconds, its output a linear basis of the
+   training residuals folded into its last layer) or, with no hidden layer, linearly in closed
+   form (ridge regression, ``ridge``).
 
-Both parts are a few matrix products per frame (no network), so it streams in well under a
-millisecond for a 2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
+Both parts are a few matrix products per frame, so it streams in well under a millisecond for a
+2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
 
 The prediction's functions (:func:`bone_transforms`, :func:`motion_features`,
 :func:`predict_heading_frame`) take numpy arrays or torch tensors and compute with the library
@@ -53,6 +57,12 @@ _CHILD = {
 #: Descriptor samples (of ``stride`` frames) over which velocities and accelerations are taken.
 VELOCITY_LAGS = (1, 3, 6, 12)
 ACCELERATION_LAGS = (1, 3, 6)
+#: Descriptor samples over which the pelvis's turning rate is taken (those inside the window).
+TURN_LAGS = (1, 2, 3, 4, 6, 8, 12, 16)
+#: Training of the residual network (``residual_widths``): AdamW with this weight decay, this
+#: many frames per step, a one-cycle learning-rate schedule peaking at ``learning_rate``.
+RESIDUAL_WEIGHT_DECAY = 1e-4
+RESIDUAL_BATCH = 128
 #: Joint index in the descriptor's 19 joints (the root is not in it: it is the origin).
 _DESC = {name: i for i, name in enumerate(JOINT2COARSE_JOINTS[1:])}
 
@@ -215,6 +225,11 @@ def motion_features(desc, num_samples: int):
         w = xp.angle(xp.exp(1j * (angle[:, 0] - angle[:, k]))) / k  # turning rate, rad/sample
         vx, vz = ((centre[:, 0] - centre[:, k]) / k)[:, [0, 2]].T
         parts.append(xp.stack([w * w, w * vx, w * vz, vx * vx, vz * vz, vx * vz], -1))
+    # turning rate over longer lags too: the angle unwrapped sample by sample
+    step = xp.angle(xp.exp(1j * (angle[:, :-1] - angle[:, 1:])))  # (B, K - 1)
+    for k in (k for k in TURN_LAGS if k < num_samples):
+        w = xp.sum(step[:, :k], 1) / k
+        parts.append(xp.stack([w, w * xp.abs(w)], -1))
     return xp.concatenate(parts, axis=1)
 
 
@@ -256,6 +271,27 @@ def residual_inputs(desc, feat_mean, feat_std, num_samples: int, clamp_z: float)
     )
 
 
+def hidden_names(params) -> list[str]:
+    """Names of the residual network's hidden layers in ``params`` (``hidden0``, ``hidden1``,
+    ... in order; none for the linear residual)."""
+    n = 0
+    while f"hidden{n}" in params:
+        n += 1
+    return [f"hidden{i}" for i in range(n)]
+
+
+def residual_hidden(x, layers: list):
+    """The residual network's hidden layers: ``h <- [relu(h @ W), 1]`` for each ``W`` (H_in + 1,
+    H) of ``layers`` (the last row is the bias), from x (B, F + 1) float32 (its last column the
+    1 of :func:`residual_inputs`) -> (B, H + 1) float32 (x itself for no layer). numpy or
+    torch."""
+    xp = _xp(x)
+    for w in layers:
+        h = xp.clip(x @ w, 0.0, None)
+        x = xp.concatenate([h, _as(_new(h, "ones", (len(h), 1)), "float32")], axis=1)
+    return x
+
+
 def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
     """Our prediction: the base plus the residual, turned from the hips' frame into the heading
     frame.
@@ -263,9 +299,10 @@ def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
     Parameters
     ----------
     desc : (B, D) float descriptors (D = num_samples * 57)
-    params : ``rest_joints`` (20, 3), ``feat_mean``, ``feat_std`` (F,), ``coef`` (F + 1, V * 3)
-        float32 (:class:`BodyResidualModel`'s arrays), ``used`` (S,) int and ``skin``
-        (V, 4 S) float32 (:func:`skin_matrix`)
+    params : ``rest_joints`` (20, 3), ``feat_mean``, ``feat_std`` (F,), the hidden layers
+        ``hidden0``, ``hidden1``, ... (F + 1, H0), (H0 + 1, H1), ... (none for the linear
+        residual) and ``coef`` (H + 1, V * 3) float32 (:class:`BodyResidualModel`'s arrays),
+        ``used`` (S,) int and ``skin`` (V, 4 S) float32 (:func:`skin_matrix`)
         numpy arrays, or torch tensors on desc's device: the computation runs in their library.
 
     Returns
@@ -276,13 +313,14 @@ def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
     desc = _as(desc, "float64")
     m = bone_transforms(desc[:, :57].reshape(-1, 19, 3), p["rest_joints"])
     x = _as(residual_inputs(desc, p["feat_mean"], p["feat_std"], num_samples, clamp_z), "float32")
+    x = residual_hidden(x, [p[n] for n in hidden_names(p)])
     residual = (x @ p["coef"]).reshape(len(desc), -1, 3)
     hips_t = _as(xp.swapaxes(m[:, 0, :, :3], 1, 2), "float32")  # row vectors: r R^T
     return skinned_base(m, p["used"], p["skin"]) + xp.matmul(residual, hips_t)
 
 
 class BodyResidualModel:
-    """Our Joint2Coarse: :func:`bone_transforms` skinning + ridge residual (module docstring).
+    """Our Joint2Coarse: :func:`bone_transforms` skinning + residual (module docstring).
 
     Quacks like :class:`~training.joint2coarse.model.Joint2CoarseNet` where prediction needs it
     (``config``, ``n_vertices``, ``descriptor_dim``, :meth:`follow_weights`, :meth:`predict`):
@@ -295,8 +333,10 @@ class BodyResidualModel:
         :func:`body_rig`.
     feat_mean, feat_std : (F,)
         Normalisation of :func:`motion_features`.
-    coef : (F + 1, V * 3)
-        Residual = ``[clamp(z), 1] @ coef``.
+    hidden0, hidden1, ... : (F + 1, H0), (H0 + 1, H1), ...
+        The residual network's hidden layers (:func:`residual_hidden`); none: linear.
+    coef : (H + 1, V * 3)
+        Residual = ``residual_hidden([clamp(z), 1]) @ coef``.
     """
 
     def __init__(self, config: Joint2CoarseConfig, descriptor_dim: int, arrays: dict):
@@ -336,7 +376,7 @@ class BodyResidualModel:
     def params(self) -> dict:
         """The arrays :func:`predict_heading_frame` reads (numpy)."""
         used, skin = self.skin()
-        names = ("rest_joints", "feat_mean", "feat_std", "coef")
+        names = ("rest_joints", "feat_mean", "feat_std", "coef", *hidden_names(self.arrays))
         return {"used": used, "skin": skin, **{k: self.arrays[k] for k in names}}
 
     def predict(self, desc: np.ndarray) -> np.ndarray:
@@ -387,7 +427,8 @@ def fit_body_residual(
     verts: np.ndarray,
     rig: tuple[np.ndarray, np.ndarray, np.ndarray],
 ) -> BodyResidualModel:
-    """Fit the residual in closed form.
+    """Fit the residual: the network of ``config.residual_widths``
+    (:func:`fit_residual_network`), or for no hidden layer, linearly in closed form (ridge).
 
     Parameters
     ----------
@@ -411,11 +452,83 @@ def fit_body_residual(
     m = model.transforms(desc)
     y = np.asarray(verts, np.float64).reshape(len(desc), -1, 3) - model.base(m)
     y = np.matmul(y, m[:, 0, :, :3]).reshape(len(desc), -1)  # into the hips' frame: R^T y
-    reg = config.ridge * len(x) * np.eye(x.shape[1])
-    reg[-1, -1] = 0.0  # the bias is not shrunk
-    coef = np.linalg.solve(x.T @ x + reg, x.T @ y)
+    if config.residual_widths:
+        hidden, coef = fit_residual_network(config, x, y)
+        model.arrays.update({f"hidden{i}": w.astype(np.float32) for i, w in enumerate(hidden)})
+    else:
+        reg = config.ridge * len(x) * np.eye(x.shape[1])
+        reg[-1, -1] = 0.0  # the bias is not shrunk
+        coef = np.linalg.solve(x.T @ x + reg, x.T @ y)
     model.arrays["coef"] = coef.astype(np.float32)
     return model
+
+
+def fit_residual_network(
+    config: Joint2CoarseConfig, x: np.ndarray, y: np.ndarray
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Train the residual network: ReLU layers of ``config.residual_widths`` (dropout
+    ``residual_dropout``) onto the coefficients of the first ``residual_basis`` principal
+    components of the training residuals, ``residual_steps`` AdamW steps (module constants),
+    the loss the residual's squared error in metres. Seeded by ``config.seed`` on its own random
+    stream (the caller's is untouched).
+
+    Parameters
+    ----------
+    x : (N, F + 1) float, :func:`residual_inputs` of the training frames
+    y : (N, V * 3) float, their residuals in the hips' frame
+
+    Returns
+    -------
+    hidden : list of (H_in + 1, H) float32, the layers as :func:`residual_hidden` takes them
+    coef : (H + 1, V * 3) float32, the last layer, the basis and the mean residual in one matrix
+    """
+    y = np.asarray(y, np.float64)
+    mean = y.mean(0)
+    k = max(1, min(config.residual_basis, *y.shape))
+    basis = np.linalg.svd(y - mean, full_matrices=False)[2][:k]  # (k, V * 3) orthonormal rows
+    c = (y - mean) @ basis.T
+    scale = np.maximum(c.std(0), 1e-9)
+    # In units of scale the targets are z-scores; weighted by scale**2 the loss is the
+    # residual's squared error (the basis rows are orthonormal), up to a constant factor.
+    loss_weight = torch.from_numpy(k * scale**2 / (scale**2).sum()).float()
+    inputs = torch.from_numpy(np.asarray(x, np.float32))
+    targets = torch.from_numpy((c / scale).astype(np.float32))
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)
+        gen = torch.Generator().manual_seed(config.seed)
+        layers, width = [], inputs.shape[1]
+        for w in config.residual_widths:
+            layers += [torch.nn.Linear(width, w), torch.nn.ReLU()]
+            layers.append(torch.nn.Dropout(config.residual_dropout))
+            width = w
+        net = torch.nn.Sequential(*layers, torch.nn.Linear(width, k))
+        opt = torch.optim.AdamW(
+            net.parameters(), lr=config.learning_rate, weight_decay=RESIDUAL_WEIGHT_DECAY
+        )
+        steps = max(1, config.residual_steps)
+        sched = torch.optim.lr_scheduler.OneCycleLR(
+            opt, config.learning_rate, total_steps=steps, pct_start=0.1
+        )
+        batch = min(RESIDUAL_BATCH, len(inputs))
+        for _ in range(config.residual_steps):
+            i = torch.randint(0, len(inputs), (batch,), generator=gen)
+            loss = (((net(inputs[i]) - targets[i]) ** 2) * loss_weight).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+    linear = [m for m in net if isinstance(m, torch.nn.Linear)]
+    folded = [
+        np.concatenate([m.weight.detach().numpy().T, m.bias.detach().numpy()[None]], 0)
+        for m in linear
+    ]
+    folded = [f.astype(np.float64) for f in folded]
+    # the inputs' last column is already the 1: the first layer's bias goes onto its row
+    first = folded[0][:-1]
+    first[-1] += folded[0][-1]
+    coef = (folded[-1] * scale) @ basis
+    coef[-1] += mean
+    return [first, *folded[1:-1]], coef
 
 
 def body_model_from_state(
@@ -426,4 +539,21 @@ def body_model_from_state(
     missing = [n for n in names if n not in state]
     if missing:
         raise InputError(f"Joint2Coarse model file lacks {missing}", path)
-    return BodyResidualModel(config, descriptor_dim, {n: state[n].numpy() for n in names})
+    arrays = {n: state[n].numpy() for n in (*names, *hidden_names(state))}
+    n_features = motion_features(np.zeros((1, descriptor_dim)), config.num_samples).shape[1]
+    if len(arrays["feat_mean"]) != n_features:
+        raise InputError(
+            f"Joint2Coarse model file was made for {len(arrays['feat_mean'])} motion features, "
+            f"this version computes {n_features}: retrain it (dng train joint2coarse)",
+            path,
+        )
+    width = n_features + 1
+    for name in (*hidden_names(arrays), "coef"):
+        if arrays[name].ndim != 2 or arrays[name].shape[0] != width:
+            raise InputError(
+                f"Joint2Coarse model file's {name} is {arrays[name].shape}, its rows must be "
+                f"{width}",
+                path,
+            )
+        width = arrays[name].shape[1] + 1
+    return BodyResidualModel(config, descriptor_dim, arrays)

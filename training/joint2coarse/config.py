@@ -25,8 +25,9 @@ class Joint2CoarseConfig(PlainConfig):
     model: str = "paper"
     """Which Joint2Coarse: ``paper`` (the paper's shape autoencoder and motion encoder, the
     fields below) or ``ours`` (:mod:`training.joint2coarse.body_model`: the proxy skinned to the
-    body plus a ridge residual on the joints' history; it uses ``window``, ``stride``,
-    ``clamp_z``, ``ridge`` and ``skin_fade``, and trains in seconds)."""
+    body plus a residual network on the joints' history; it uses ``window``, ``stride``,
+    ``clamp_z``, ``skin_fade``, the ``residual_*`` fields and ``learning_rate`` (``ridge`` for
+    the linear residual), and trains in seconds)."""
     ridge: float = 30.0
     """``ours``: ridge penalty of the residual, per training frame, on z-scored features.
     Chosen on the quick preset's validation motions (mean over them of the mean / p95 vertex
@@ -35,6 +36,25 @@ class Joint2CoarseConfig(PlainConfig):
     ``walk-fast``: 0.1: 82.8 / 211, 1: 71.2 / 170, 10: 55.2 / 122, 30: 53.7 / 112, 100: 55.4 /
     114). Before the validation dance was spun, 1 was best (49.1 / 109 against 54.1 / 110 at
     10); a residual in the heading frame instead of the hips' gave 60.9 against 59.8 mm."""
+    residual_widths: tuple[int, ...] = (256, 256)
+    """``ours``: hidden widths of the residual network (ReLU layers on the motion features,
+    :func:`~training.joint2coarse.body_model.fit_residual_network`); ``()`` gives the linear
+    residual fitted in closed form (``ridge``). Chosen on the quick preset's validation motions:
+    the mean over them of the mean / p95 vertex error (mm), over seeds 0 and 1, of a fresh quick
+    project (``dng demo --out P``, then ``python benchmarks/joint2coarse_validation.py P --set
+    model=ours --set residual_widths=[W,W] --seeds 0 1``): linear 65.1 / 134, (128, 128) 48.0 /
+    103, (256, 256) 46.3 / 96, (512, 512) 45.9 / 94 (within seed noise, 4x the weights),
+    (256, 256, 256) 47.5 / 98; the paper's model on the same splits 55.8 / 124."""
+    residual_basis: int = 128
+    """``ours``: the network predicts the coefficients of this many principal components of the
+    training residuals (as ``residual_widths``: 64: 46.8 / 97, 256: 46.7 / 98, the same within
+    seed noise)."""
+    residual_steps: int = 3000
+    """``ours``: training steps of the residual network (20 s on one thread on the quick
+    project; 6000: 46.0 / 95, the same within seed noise)."""
+    residual_dropout: float = 0.1
+    """``ours``: dropout after every hidden ReLU of the residual network (as
+    ``residual_widths``: 0: 52.2 / 108, 0.2: 46.9 / 98)."""
     skin_fade: float = 1.0
     """``ours``: how the skinning fades down the garment: a vertex at relative height h in the
     garment (1 at the top, 0 at the hem) keeps ``h ** skin_fade`` of the body's skinning
@@ -130,11 +150,19 @@ class Joint2CoarseConfig(PlainConfig):
             v = getattr(self, name)
             if not (isinstance(v, int) and v > 0):
                 raise InputError(f"joint2coarse config {name}={v!r} must be a positive integer")
-        for name in ("autoencoder_steps", "motion_steps", "finetune_steps", "output_basis", "seed"):
+        for name in (
+            "autoencoder_steps", "motion_steps", "finetune_steps", "output_basis", "seed",
+            "residual_steps",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise InputError(f"joint2coarse config {name}={v!r} must be an integer >= 0")
-        for name in ("encoder_widths", "motion_widths"):
+        if not (isinstance(self.residual_basis, int) and self.residual_basis > 0):
+            raise InputError(
+                f"joint2coarse config residual_basis={self.residual_basis!r} must be a positive "
+                "integer"
+            )
+        for name in ("encoder_widths", "motion_widths", "residual_widths"):
             v = getattr(self, name)
             if not (isinstance(v, tuple) and all(isinstance(w, int) and w > 0 for w in v)):
                 raise InputError(f"joint2coarse config {name}={v!r} must be a tuple of ints > 0")
@@ -150,8 +178,10 @@ class Joint2CoarseConfig(PlainConfig):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"joint2coarse config {name}={v!r} must be a number >= 0")
-        if not 0.0 <= self.dropout < 1.0:
-            raise InputError(f"joint2coarse config dropout={self.dropout!r} must be in [0, 1)")
+        for name in ("dropout", "residual_dropout"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v < 1.0):
+                raise InputError(f"joint2coarse config {name}={v!r} must be in [0, 1)")
         if not 0.0 <= self.val_fraction < 1.0:
             raise InputError(
                 f"joint2coarse config val_fraction={self.val_fraction!r} not in [0, 1)"

@@ -523,7 +523,8 @@ def _train_ours(
     rig: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
 ) -> Joint2CoarseTrainResult:
     """Fit our model (:func:`fit_body_residual`) on the heading-frame training frames; the log
-    gets one row with the held-out frames' error."""
+    gets one row with the held-out frames' error, its stage ``residual`` (the network) or
+    ``ridge`` (the linear residual)."""
     if rig is None:
         raise InputError("our Joint2Coarse (model=ours) needs the proxy's body rig (body_rig)")
     data = prepare_data(clips, replace(cfg, tilt_follow=0.0))  # ours predicts in the heading frame
@@ -531,11 +532,12 @@ def _train_ours(
     model_path, log_path = out_dir / MODEL_NAME, out_dir / LOG_NAME
     save_model(model, model_path)
     errors, baseline = {}, None
-    row = [0, "ridge", 0, "", "", ""]
+    stage = "residual" if cfg.residual_widths else "ridge"
+    row = [cfg.residual_steps if cfg.residual_widths else 0, stage, 0, "", "", ""]
     if len(data.val_verts):
         pred = model.predict(data.val_desc).reshape(len(data.val_desc), -1)
-        errors["ridge"] = _errors_mm(pred, data.val_verts)
-        row[-1] = f"{errors['ridge'].mean_mm:.4f}"
+        errors[stage] = _errors_mm(pred, data.val_verts)
+        row[-1] = f"{errors[stage].mean_mm:.4f}"
         mean = data.train_verts.mean(0, keepdims=True)
         baseline = _errors_mm(np.broadcast_to(mean, data.val_verts.shape), data.val_verts)
     with contextlib.suppress(FileNotFoundError):

@@ -1,0 +1,125 @@
+"""Joint2Coarse on a project's validation motions: the figures every choice is made on.
+
+Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
+[--seeds 0 1 2] [--json] [--test]``
+
+Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
+joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
+train split (``sim/NAME-proxy/cache.npz`` of the training motion and ``joint2coarse_extra``),
+once per ``--seeds`` (the config's ``seed``), in a temporary folder: nothing is written into the
+project. Prints the mean / p95 / max vertex error (mm) against the simulation of every
+validation motion (``joint2coarse_validation``), their mean over the motions and, with several
+seeds, the mean over seeds, and the training time. ``--test`` adds the test motions: report
+them, never choose on them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from dataclasses import asdict, replace
+
+import numpy as np
+import torch
+
+from app.commands.train import parse_setting
+from core.mesh import load_mesh
+from core.project import Project
+from core.sim import load_cache
+from pipeline.config import joint2coarse_config, joint2coarse_splits, project_config
+from pipeline.stages.motions import load_project_motion
+from training.joint2coarse import (
+    Joint2CoarseClip,
+    joint2coarse_inputs,
+    predict_proxy,
+    train_joint2coarse,
+    vertex_errors,
+)
+from training.joint2coarse.body_model import body_rig
+
+
+def _clip(project: Project, name: str) -> Joint2CoarseClip:
+    joints, root_rot = joint2coarse_inputs(load_project_motion(project, name))
+    positions = load_cache(project.path(f"sim/{name}-proxy", "cache.npz")).positions
+    return Joint2CoarseClip(joints, root_rot, positions, name=name)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("project")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--seeds", type=int, nargs="+", default=None, help="default: the config's")
+    ap.add_argument("--json", action="store_true", help="print only JSON")
+    ap.add_argument("--test", action="store_true", help="also the test motions (report only)")
+    args = ap.parse_args()
+
+    torch.set_num_threads(1)
+    project = Project(args.project)
+    config = project_config(project)
+    changes = dict(parse_setting(item) for item in args.overrides)
+    config = replace(config, joint2coarse_overrides={**config.joint2coarse_overrides, **changes})
+    cfg = joint2coarse_config(config)
+    splits = joint2coarse_splits(config)
+    clips = [_clip(project, name) for name in splits["train"]]
+    rig = None
+    if cfg.model == "ours":
+        rest = load_mesh(project.path("proxy", "positions.obj"))[0].vertices
+        rig = body_rig(config.body, rest, cfg.skin_fade)
+    scored = {"validation": splits["validation"]}
+    if args.test:
+        scored["test"] = splits["test"]
+    refs = {
+        n: (_clip(project, n), load_cache(project.path(f"sim/{n}-proxy", "cache.npz")).positions)
+        for names in scored.values()
+        for n in names
+    }
+    runs = []
+    for seed in args.seeds if args.seeds is not None else [cfg.seed]:
+        run_cfg = replace(cfg, seed=seed)
+        with tempfile.TemporaryDirectory() as tmp:
+            start = time.perf_counter()
+            result = train_joint2coarse(clips, tmp, run_cfg, progress=False, rig=rig)
+            train_s = time.perf_counter() - start
+        run = {"seed": seed, "train_s": train_s}
+        for split, names in scored.items():
+            errors = {}
+            for n in names:
+                clip, ref = refs[n]
+                pred = predict_proxy(result.net, clip.joints, clip.root_rotations)
+                errors[n] = asdict(vertex_errors(pred, ref))
+            means = {
+                k: float(np.mean([e[k] for e in errors.values()])) for k in ("mean_mm", "p95_mm")
+            }
+            run[split] = {"motions": errors, "mean_over_motions": means}
+        runs.append(run)
+    summary = {
+        split: {
+            k: float(np.mean([r[split]["mean_over_motions"][k] for r in runs]))
+            for k in ("mean_mm", "p95_mm")
+        }
+        for split in scored
+    }
+    out = {"config": cfg.to_dict(), "splits": scored, "runs": runs, "mean_over_seeds": summary}
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return
+    print(f"model={cfg.model}, settings changed: {changes or 'none'}")
+    for run in runs:
+        for split in scored:
+            cells = "  ".join(
+                f"{n} {e['mean_mm']:.1f}/{e['p95_mm']:.0f}"
+                for n, e in run[split]["motions"].items()
+            )
+            m = run[split]["mean_over_motions"]
+            print(
+                f"seed {run['seed']} {split:10s} mean/p95 mm {m['mean_mm']:6.1f} / "
+                f"{m['p95_mm']:5.0f}   ({cells}; trained in {run['train_s']:.1f} s)"
+            )
+    for split, m in summary.items():
+        print(f"{split} over {len(runs)} seed(s): {m['mean_mm']:.1f} / {m['p95_mm']:.0f} mm")
+
+
+if __name__ == "__main__":
+    main()
