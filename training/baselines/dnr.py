@@ -39,9 +39,9 @@ from training.renderer.model import NeuralTexture, PatchDiscriminator
 class DNRConfig(BaselineConfig):
     """Deferred neural rendering: neural texture + U-Net; ``gan`` picks ``dnr-gan``.
 
-    ``DNR_PRESETS["cpu"]`` (the defaults): one training step at 128 px, batch 2, costs 0.11 s
-    (``dnr``) and 0.20 s (``dnr-gan``, perceptual loss off) of CPU on one thread (medians; 0.23
-    and 0.40 s wall on the shared 2-core development machine at load 7), measured with
+    ``DNR_PRESETS["cpu"]`` (the defaults): one training step at 128 px, batch 2, costs 0.125 s
+    (``dnr``) and 0.169 s (``dnr-gan``, perceptual loss off) of CPU on one thread (medians, 16
+    texture channels; 0.11 and 0.20 s with the 8 it had, on a busier machine), measured with
     ``.venv/bin/python -m training.baselines --bench dnr dnr-gan``. A VGG19 perceptual loss
     adds its own cost.
     """
@@ -52,16 +52,19 @@ class DNRConfig(BaselineConfig):
     """Texels per side of each neural-texture level. The cpu preset halves our renderer's
     (512, 256, 128, 64): the texture's sampling backward dominates a CPU step (0.3 s at 512 x
     16 channels); the ``paper`` preset has the full size."""
-    texture_channels: int = 8
-    """Channels per texture level (16 in DNR, our renderer and the ``paper`` preset)."""
+    texture_channels: int = 16
+    """Channels per texture level: 16, as DNR's paper and our renderer (it was 8 here, half our
+    renderer's texture capacity)."""
     w_texture: float = 1.0
     """Weight of DNR's regulariser (first 3 texture channels ~ the image on the proxy); 0: off."""
     gan: bool = False
     """Train with our loss and the temporal PatchGAN (the ``dnr-gan`` variant)."""
     lr_g: float = 1e-4
-    """Adam learning rate of the U-Net and the texture (our renderer's)."""
+    """Adam learning rate of the U-Net and the texture: the paper's rate for its renderer; our
+    renderer's ``cpu`` preset trains at 2e-4, falling over the second half (the report's "What
+    each method got" lists both)."""
     lr_d: float = 3e-4
-    """Adam learning rate of the discriminator (our renderer's)."""
+    """Adam learning rate of the discriminator (the paper's, as our renderer's)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
