@@ -67,6 +67,14 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         assert (out / "sim" / f"{clip}-target" / "sheet.png").is_file()
         assert f"](sim/{clip}-target/sheet.png)" in md
     assert "the shape autoencoder on its simulated shapes" in md
+    # Two protocols: U (the unseen test motions) and P (the training motion, unseen cameras).
+    ev = report["evaluation"]
+    assert set(ev["motions"]) == {"twirl", "cmu-01_01"}
+    p = ev["protocol_p"]
+    assert p["motion"] == "dance" and set(p["methods"]) == set(ev["methods"])
+    assert 0 < p["mse_ratio_ours_to_dnr"] and 0 < p["methods"]["ours"]["mse"]["mean"]
+    assert (out / "testset" / "dance" / "samples.json").is_file()
+    assert "(protocol P, the paper's)" in md and "](eval/compare-dance.png)" in md
     assert "(discriminator), falling linearly to zero from step 15." in md  # of 30
     assert "- baseline `dnr`: 30 steps" in md and "learning rates constant" in md
     for m in j2c["motions"].values():

@@ -22,14 +22,19 @@ def add_output_arguments(parser) -> None:
 
 def project_test_sets(root, config) -> list[str]:
     """The project's test motions that have a test set (``testset/NAME/samples.json``): those of
-    ``config.test_motions`` first, in its order, then any others by name. InputError when there
-    is none."""
+    ``config.test_motions`` first, in its order, then any others by name; never the training
+    motion (its test set, from unseen cameras, is the evaluation's protocol P, not an unseen
+    motion). InputError when there is none."""
     from pathlib import Path
 
     from core.errors import InputError
 
     root = Path(root)
-    have = sorted(p.parent.name for p in (root / "testset").glob("*/samples.json"))
+    have = sorted(
+        p.parent.name
+        for p in (root / "testset").glob("*/samples.json")
+        if p.parent.name != config.train_motion.name
+    )
     if not have:
         raise InputError("no test set: run dng demo (the testset stage) first", root / "testset")
     order = [m.name for m in config.test_motions if m.name in have]

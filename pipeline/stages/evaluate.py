@@ -1,5 +1,7 @@
-"""Stage ``eval``: every method scored on every test motion from unseen cameras
-(``eval/report.json``)."""
+"""Stage ``eval``: every method scored from unseen cameras under two protocols
+(``eval/report.json``): **U**, the unseen test motions (beyond the paper), and **P**, the
+paper's: the training motion itself, from cameras the training never saw. Every method renders
+Joint2Coarse's proxy in both, and the simulated proxy beside it (the renderers alone)."""
 
 from __future__ import annotations
 
@@ -43,9 +45,22 @@ def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Pa
     return methods
 
 
+def _ratios(methods: dict) -> dict:
+    """Our MSE over DNR's, on Joint2Coarse's proxy and on the simulated one (when DNR ran)."""
+    out = {}
+    for suffix in ("", " (simulated proxy)"):
+        ours, dnr = methods[f"ours{suffix}"], methods.get(f"dnr{suffix}")
+        if dnr and dnr["mse"]["mean"]:
+            key = "mse_ratio_ours_to_dnr" + ("_simulated_proxy" if suffix else "")
+            out[key] = ours["mse"]["mean"] / dnr["mse"]["mean"]
+    return out
+
+
 def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> dict:
-    """Score every method on every test motion from unseen cameras: ``eval/report.json`` and
-    ``eval/compare-MOTION.png`` (ground truth and each method on the same frames)."""
+    """Score every method on every test motion (protocol U: ``methods``, ``motions``) and on the
+    training motion (protocol P: ``protocol_p``), each from unseen cameras (``testset/``):
+    ``eval/report.json`` and ``eval/compare-MOTION.png`` (ground truth and each method on the
+    same frames)."""
     import torch
 
     from core.shading import contact_sheet, write_png
@@ -55,11 +70,14 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
     from training.metrics import FrameMetrics
 
     tests = [m.name for m in available_test_motions(config)]
+    train = config.train_motion.name
     methods = eval_methods(project, config)
     eval_cfg = EvalConfig(inception_path=config.inception_path)
     inputs = [path for path, _, _ in methods.values()]
-    for name in tests:
-        for root in {r for _, _, r in methods.values()}:
+    for name in [*tests, train]:
+        # protocol P scores the methods of this project's own proxy (an ablation's
+        # sub-project with another proxy has no test set of the training motion)
+        for root in {r for _, _, r in methods.values()} if name != train else {project.root}:
             data = Project(root)
             inputs += [
                 data.path(f"testset/{name}", "samples.json"),
@@ -75,25 +93,29 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
         torch.set_num_threads(config.torch_threads)
         models = {name: load_for_evaluation(path) for name, (path, _, _) in methods.items()}
         totals = {name: FrameMetrics() for name in methods}
+        seen = {name: FrameMetrics() for name in methods}
         report: dict = {"methods": {}, "motions": {}, "test_motions": tests}
         outputs = []
-        for motion in tests:
+        own = {n: m for n, m in methods.items() if m[2] == project.root}
+        for motion in [*tests, train]:
+            scored = methods if motion != train else own
             data = {
                 (root, src): GarmentDataset(root, source=src, split=motion)
-                for _, src, root in methods.values()
+                for _, src, root in scored.values()
             }
+            protocol = "P, the training motion" if motion == train else "U"
             log(
-                f"  evaluating {motion}: {len(data[(project.root, 'joint2coarse')])} samples x "
-                f"{len(methods)} methods"
+                f"  evaluating {motion} ({protocol}): {len(data[(project.root, 'joint2coarse')])}"
+                f" samples x {len(scored)} methods"
             )
             results, gt_tiles = evaluate_motion(
                 {
                     name: (models[name], data[(root, src)])
-                    for name, (_, src, root) in methods.items()
+                    for name, (_, src, root) in scored.items()
                 },
                 eval_cfg,
             )
-            report["motions"][motion] = {
+            scores = {
                 name: {
                     "samples": len(data[(methods[name][2], methods[name][1])]),
                     **r.metrics.summary(),
@@ -102,7 +124,10 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
             }
             for name, r in results.items():
                 for metric, values in r.metrics.values.items():
-                    totals[name].add(metric, values)
+                    (seen if motion == train else totals)[name].add(metric, values)
+                scores[name].update(fid_scores(r, eval_cfg))
+            if motion != train:
+                report["motions"][motion] = scores
             tiles, labels = [], []
             for row_name, row in (
                 ("ground truth", gt_tiles),
@@ -114,15 +139,11 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
                 out / f"compare-{motion}.png", contact_sheet(tiles, labels, columns=len(gt_tiles))
             )
             outputs.append(f"compare-{motion}.png")
-            for name, r in results.items():
-                report["motions"][motion][name].update(fid_scores(r, eval_cfg))
-        for name in methods:
-            report["methods"][name] = totals[name].summary()
-        for suffix in ("", " (simulated proxy)"):
-            ours, dnr = report["methods"][f"ours{suffix}"], report["methods"].get(f"dnr{suffix}")
-            if dnr and dnr["mse"]["mean"]:
-                key = "mse_ratio_ours_to_dnr" + ("_simulated_proxy" if suffix else "")
-                report[key] = ours["mse"]["mean"] / dnr["mse"]["mean"]
+        report["methods"] = {name: totals[name].summary() for name in methods}
+        report.update(_ratios(report["methods"]))
+        p = {"motion": train, "methods": {name: seen[name].summary() for name in own}}
+        p.update(_ratios(p["methods"]))
+        report["protocol_p"] = p
         write_json(out / "report.json", report)
         return [*outputs, "report.json"]
 
