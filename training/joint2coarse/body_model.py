@@ -22,7 +22,7 @@ the heading frame, as the sum of
    training residuals folded into its last layer) or, with no hidden layer, linearly in closed
    form (ridge regression, ``ridge``).
 
-Both parts are a few matrix products per frame, so it streams in well under a millisecond for a
+Both parts are a few matrix products per frame, so it streams in about 0.9 ms a frame for a
 2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
 
 The prediction's functions (:func:`bone_transforms`, :func:`motion_features`,
