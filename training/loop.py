@@ -2,16 +2,24 @@
 one step per batch of the feed, a loss row every ``log_every`` steps, a resumable checkpoint
 every ``checkpoint_every``, optional previews, and the caller's callback after each step.
 
-A trainer (:class:`Trainer`) brings the parts that differ: its step, its loss row, its preview
-and its checkpoint. The loop owns the order of things, so both trainers log, skip, checkpoint
-and resume the same way.
+:class:`AdversarialRun` is the state both trainers keep and checkpoint the same way (the sample
+order, the step, skipped steps, loss sums between log rows, rows not yet written, the elapsed
+time), its loss row and the checks a resumed checkpoint must pass. A trainer subclasses it and
+brings only what differs: its networks, its step, its preview and what else its checkpoint
+holds. The loop owns the order of things, so both trainers log, skip, checkpoint and resume
+the same way.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import Protocol
 
+import torch
+
+from core.errors import InputError
 from training.loader import SampleOrder
 
 
@@ -29,6 +37,99 @@ class Trainer(Protocol):
     def log_row(self) -> dict[str, float]: ...
 
     def save_checkpoint(self) -> None: ...
+
+
+class AdversarialRun:
+    """What both adversarial trainers keep, log and checkpoint alike.
+
+    Parameters
+    ----------
+    n_samples, seed : the data set's length and the run's seed (the order's generator is seeded
+        by ``seed + 1``, as it always was)
+    losses : the loss names, in the log's column order (``step``, ``epoch``, the losses,
+        ``skipped``, ``seconds``)
+    """
+
+    def __init__(self, n_samples: int, seed: int, losses: tuple[str, ...]):
+        self.order = SampleOrder.start(n_samples, seed + 1)
+        self.step = self.skipped = self.count = self.resumed_at_step = 0
+        self.losses = losses
+        self.sums = dict.fromkeys(losses, 0.0)
+        self.pending_rows: list[list] = []
+        self.t0 = time.perf_counter()
+        self.elapsed = 0.0
+
+    def off_losses(self) -> set[str]:
+        """Losses this run does not compute (logged as ``off``)."""
+        return set()
+
+    def log_row(self) -> dict[str, float]:
+        """Queue a log row of the loss means since the last one; returns the means."""
+        n = max(self.count, 1)
+        means = {k: v / n for k, v in self.sums.items()}
+        off = self.off_losses()
+        row: list = [self.step, self.order.epoch]
+        for k in self.losses:
+            if self.count == 0:
+                row.append("")
+            elif k in off:
+                row.append("off")
+            else:
+                row.append(f"{means[k]:.6g}")
+        row += [self.skipped, f"{self.seconds():.1f}"]
+        self.pending_rows.append(row)
+        self.sums = dict.fromkeys(self.sums, 0.0)
+        self.count = 0
+        return means
+
+    def seconds(self) -> float:
+        """Training time of the run so far, resumed runs included."""
+        return self.elapsed + time.perf_counter() - self.t0
+
+    def run_state(self) -> dict:
+        """The checkpoint's fields of this state (with the process's torch RNG)."""
+        return {
+            "step": self.step,
+            "epoch": self.order.epoch,
+            "perm": self.order.perm,
+            "pos": self.order.pos,
+            "skipped": self.skipped,
+            "sums": self.sums,
+            "count": self.count,
+            "elapsed": self.seconds(),
+            "torch_rng": torch.get_rng_state(),
+            "shuffle_rng": self.order.rng,
+        }
+
+    def restore_run_state(self, payload: dict) -> None:
+        """Inverse of :meth:`run_state` (sets the process's torch RNG)."""
+        self.step = self.resumed_at_step = int(payload["step"])
+        self.order = SampleOrder(
+            payload["perm"], int(payload["pos"]), int(payload["epoch"]), payload["shuffle_rng"]
+        )
+        self.skipped = int(payload["skipped"])
+        self.sums = dict(payload["sums"])
+        self.count = int(payload["count"])
+        self.elapsed = float(payload["elapsed"])
+        torch.set_rng_state(payload["torch_rng"])
+
+
+def read_checkpoint(path: Path, fmt: str, what: str, expected: list[tuple[str, object, str]]):
+    """A checkpoint written by one of the trainers: its payload, after checking its format and
+    that each ``(key, value, what differs)`` of ``expected`` matches; InputError naming the file
+    otherwise (the run then needs a new folder)."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise InputError(f"cannot read {what} checkpoint: {exc}", path) from None
+    if not isinstance(payload, dict) or payload.get("format") != fmt:
+        raise InputError(f"not a {what} training checkpoint ({fmt})", path)
+    for key, mine, differs in expected:
+        if payload.get(key) != mine:
+            raise InputError(
+                f"checkpoint was made with {differs}: use a new folder or delete it", path
+            )
+    return payload
 
 
 def run_steps(

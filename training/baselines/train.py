@@ -36,8 +36,8 @@ from training.baselines.common import BaselineConfig, BaselineModel, RendererAda
 from training.baselines.dnr import DNR_GAN_PRESETS, DNR_PRESETS, DeferredNeuralRenderer, DNRConfig
 from training.baselines.pix2pix import PIX2PIX_PRESETS, Pix2Pix, Pix2PixConfig
 from training.csvlog import append_rows, truncate_rows
-from training.loader import SampleOrder, batches
-from training.loop import run_steps
+from training.loader import batches
+from training.loop import AdversarialRun, read_checkpoint, run_steps
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.data import CUR
 from training.schedule import lr_scale, set_lr
@@ -192,8 +192,9 @@ def _adam(params, lr: float, betas, device: torch.device) -> torch.optim.Adam:
     return torch.optim.Adam(params, lr=lr, betas=tuple(betas), fused=device.type in ("cpu", "cuda"))
 
 
-class _Trainer:
-    """The state of one run (so checkpoints capture all of it)."""
+class _Trainer(AdversarialRun):
+    """The state of one run (so checkpoints capture all of it): the model, its discriminator
+    and optimisers here, the rest in :class:`training.loop.AdversarialRun`."""
 
     def __init__(self, kind: str, dataset, config: BaselineConfig, out_dir: Path, steps: int,
                  device: torch.device):  # fmt: skip
@@ -225,13 +226,7 @@ class _Trainer:
         )
         if self.perceptual is not None:
             self.perceptual.to(device)
-        self.order = SampleOrder.start(len(dataset), config.seed + 1)
-        self.step = self.skipped = self.count = 0
-        self.sums = dict.fromkeys(_LOSSES, 0.0)
-        self.pending_rows: list[list] = []
-        self.resumed_at_step = 0
-        self.t0 = time.perf_counter()
-        self.elapsed = 0.0
+        super().__init__(len(dataset), config.seed, _LOSSES)
 
     def feed(self, steps: int, workers: int = 0):
         """The next ``steps`` checked batches and the sample order after each
@@ -305,24 +300,9 @@ class _Trainer:
         values = (loss_g, l1, perc, fm, gan, extra, loss_d)
         return {k: float(v.detach()) for k, v in zip(_LOSSES, values)}
 
-    def log_row(self) -> dict[str, float]:
-        n = max(self.count, 1)
-        means = {k: v / n for k, v in self.sums.items()}
-        row: list = [self.step, self.order.epoch]
-        for k in _LOSSES:
-            if self.count == 0:
-                row.append("")
-            elif k == "perceptual" and self.perceptual is None:
-                row.append("off")
-            elif k in ("fm", "gan_g", "loss_d") and self.disc is None:
-                row.append("off")
-            else:
-                row.append(f"{means[k]:.6g}")
-        row += [self.skipped, f"{self.elapsed + time.perf_counter() - self.t0:.1f}"]
-        self.pending_rows.append(row)
-        self.sums = dict.fromkeys(self.sums, 0.0)
-        self.count = 0
-        return means
+    def off_losses(self) -> set[str]:
+        off = {"fm", "gan_g", "loss_d"} if self.disc is None else set()
+        return off | ({"perceptual"} if self.perceptual is None else set())
 
     def save_checkpoint(self) -> None:
         append_rows(self.log_path, LOG_COLUMNS, self.pending_rows)
@@ -337,52 +317,25 @@ class _Trainer:
             "discriminator": None if self.disc is None else self.disc.state_dict(),
             "opt_g": self.opt_g.state_dict(),
             "opt_d": None if self.opt_d is None else self.opt_d.state_dict(),
-            "step": self.step,
-            "epoch": self.order.epoch,
-            "perm": self.order.perm,
-            "pos": self.order.pos,
-            "skipped": self.skipped,
-            "sums": self.sums,
-            "count": self.count,
-            "elapsed": self.elapsed + time.perf_counter() - self.t0,
-            "torch_rng": torch.get_rng_state(),
-            "shuffle_rng": self.order.rng,
+            **self.run_state(),
         }
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(payload, tmp)
 
     def load_checkpoint(self) -> None:
-        path = self.checkpoint_path
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            raise InputError(f"cannot read baseline checkpoint: {exc}", path) from None
-        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-            raise InputError(f"not a baseline training checkpoint ({CHECKPOINT_FORMAT})", path)
-        for key, mine, what in (
-            ("kind", self.kind, "another baseline"),
-            ("config", self.config.to_dict(), "a different config"),
-            ("fingerprint", self.fingerprint, "different training data"),
-            ("steps", self.steps, "a different step budget"),
-        ):
-            if payload.get(key) != mine:
-                raise InputError(
-                    f"checkpoint was made with {what}: use a new folder or delete it", path
-                )
+        payload = read_checkpoint(
+            self.checkpoint_path, CHECKPOINT_FORMAT, "baseline",
+            [("kind", self.kind, "another baseline"),
+             ("config", self.config.to_dict(), "a different config"),
+             ("fingerprint", self.fingerprint, "different training data"),
+             ("steps", self.steps, "a different step budget")],
+        )  # fmt: skip
         self.model.load_state_dict(payload["generator"])
         self.opt_g.load_state_dict(payload["opt_g"])
         if self.disc is not None:
             self.disc.load_state_dict(payload["discriminator"])
             self.opt_d.load_state_dict(payload["opt_d"])
-        self.step = self.resumed_at_step = int(payload["step"])
-        self.order = SampleOrder(
-            payload["perm"], int(payload["pos"]), int(payload["epoch"]), payload["shuffle_rng"]
-        )
-        self.skipped = int(payload["skipped"])
-        self.sums = dict(payload["sums"])
-        self.count = int(payload["count"])
-        self.elapsed = float(payload["elapsed"])
-        torch.set_rng_state(payload["torch_rng"])
+        self.restore_run_state(payload)
         truncate_rows(self.log_path, LOG_COLUMNS, self.step)
 
 

@@ -25,7 +25,6 @@ import functools
 import hashlib
 import math
 import os
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,8 +38,8 @@ from core.errors import InputError
 from core.fileio import atomic_path
 from core.shading import contact_sheet, write_png
 from training.csvlog import append_rows, truncate_rows
-from training.loader import SampleOrder, batches
-from training.loop import run_steps
+from training.loader import batches
+from training.loop import AdversarialRun, read_checkpoint, run_steps
 from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
@@ -171,8 +170,9 @@ def _image(t: torch.Tensor) -> np.ndarray:
     return (a * 255 + 0.5).astype(np.uint8)
 
 
-class _Trainer:
-    """The state of one run; kept as an object so checkpoints capture all of it."""
+class _Trainer(AdversarialRun):
+    """The state of one run, kept as an object so checkpoints capture all of it: the networks,
+    optimisers, scalers and processes here, the rest in :class:`training.loop.AdversarialRun`."""
 
     def __init__(
         self,
@@ -243,15 +243,7 @@ class _Trainer:
             self.d_ddp = torch.nn.parallel.DistributedDataParallel(self.disc, device_ids=ids)
         else:
             self.g_ddp, self.d_ddp = self.net, self.disc
-        self.order = SampleOrder.start(len(dataset), config.seed + 1)
-        self.step = 0
-        self.skipped = 0
-        self.sums = dict.fromkeys(LOG_COLUMNS[2:8], 0.0)
-        self.count = 0
-        self.pending_rows: list[list] = []
-        self.resumed_at_step = 0
-        self.t0 = time.perf_counter()
-        self.elapsed = 0.0
+        super().__init__(len(dataset), config.seed, LOG_COLUMNS[2:8])
 
     # -- one step ------------------------------------------------------------------------------
 
@@ -337,22 +329,8 @@ class _Trainer:
 
     # -- log, previews, checkpoints ------------------------------------------------------------
 
-    def log_row(self) -> dict[str, float]:
-        n = max(self.count, 1)
-        means = {k: v / n for k, v in self.sums.items()}
-        row = [self.step, self.order.epoch]
-        for k in LOG_COLUMNS[2:8]:
-            if self.count == 0:
-                row.append("")
-            elif k == "perceptual" and self.perceptual is None:
-                row.append("off")
-            else:
-                row.append(f"{means[k]:.6g}")
-        row += [self.skipped, f"{self.elapsed + time.perf_counter() - self.t0:.1f}"]
-        self.pending_rows.append(row)
-        self.sums = dict.fromkeys(self.sums, 0.0)
-        self.count = 0
-        return means
+    def off_losses(self) -> set[str]:
+        return {"perceptual"} if self.perceptual is None else set()
 
     def flush_log(self) -> None:
         if self.rank == 0:
@@ -393,54 +371,27 @@ class _Trainer:
             "opt_d": self.opt_d.state_dict(),
             "scaler_g": self.scaler_g.state_dict(),
             "scaler_d": self.scaler_d.state_dict(),
-            "step": self.step,
-            "epoch": self.order.epoch,
-            "perm": self.order.perm,
-            "pos": self.order.pos,
-            "skipped": self.skipped,
-            "sums": self.sums,
-            "count": self.count,
-            "elapsed": self.elapsed + time.perf_counter() - self.t0,
-            "torch_rng": torch.get_rng_state(),
-            "shuffle_rng": self.order.rng,
+            **self.run_state(),
         }
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(payload, tmp)
 
     def load_checkpoint(self) -> None:
-        path = self.checkpoint_path
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            raise InputError(f"cannot read renderer checkpoint: {exc}", path) from None
-        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-            raise InputError(f"not a renderer training checkpoint ({CHECKPOINT_FORMAT})", path)
-        for key, mine, what in (
-            ("config", self.config.to_dict(), "a different config"),
-            ("fingerprint", self.fingerprint, "different training data"),
-            ("steps", self.steps, "a different step budget"),
-            ("trainable", self.trainable, "a different fine-tuning mode"),
-            ("world", self.world, "a different number of processes"),
-        ):
-            if payload.get(key) != mine:
-                raise InputError(
-                    f"checkpoint was made with {what}: use a new folder or delete it", path
-                )
+        payload = read_checkpoint(
+            self.checkpoint_path, CHECKPOINT_FORMAT, "renderer",
+            [("config", self.config.to_dict(), "a different config"),
+             ("fingerprint", self.fingerprint, "different training data"),
+             ("steps", self.steps, "a different step budget"),
+             ("trainable", self.trainable, "a different fine-tuning mode"),
+             ("world", self.world, "a different number of processes")],
+        )  # fmt: skip
         self.net.load_state_dict(payload["generator"])
         self.disc.load_state_dict(payload["discriminator"])
         self.opt_g.load_state_dict(payload["opt_g"])
         self.opt_d.load_state_dict(payload["opt_d"])
         self.scaler_g.load_state_dict(payload["scaler_g"])
         self.scaler_d.load_state_dict(payload["scaler_d"])
-        self.step = self.resumed_at_step = int(payload["step"])
-        self.order = SampleOrder(
-            payload["perm"], int(payload["pos"]), int(payload["epoch"]), payload["shuffle_rng"]
-        )
-        self.skipped = int(payload["skipped"])
-        self.sums = dict(payload["sums"])
-        self.count = int(payload["count"])
-        self.elapsed = float(payload["elapsed"])
-        torch.set_rng_state(payload["torch_rng"])
+        self.restore_run_state(payload)
         self.truncate_log()
 
 
