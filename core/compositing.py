@@ -17,7 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
+from core.camera import resize_camera
 from core.errors import InputError
+from core.raster import MeshScene, RasterConfig
+from core.shading import linear_to_srgb, srgb_to_linear, to_uint8
 
 
 def surface_coverage(
@@ -31,9 +34,6 @@ def surface_coverage(
     camera : core.camera.Camera
     supersample : k, as in :class:`core.shading.ShadingConfig` (must match the render's)
     """
-    from core.camera import resize_camera
-    from core.raster import MeshScene, RasterConfig
-
     k = int(supersample)
     cam = resize_camera(camera, k * camera.width, k * camera.height)
     frags = MeshScene(vertices, faces).rasterize(cam, RasterConfig())
@@ -59,8 +59,6 @@ def recomposite(
     Works in linear RGB, where the render averaged its samples; pixels with no coverage are
     the backdrop exactly.
     """
-    from core.shading import linear_to_srgb, srgb_to_linear, to_uint8
-
     image = np.asarray(image)
     backdrop = np.asarray(backdrop)
     if image.shape != backdrop.shape or image.ndim != 3 or image.shape[2] != 3:

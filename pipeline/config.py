@@ -12,6 +12,7 @@ from pathlib import Path
 from core.body.shape import BodyShape
 from core.errors import InputError
 from core.project import Project
+from core.sim import SimConfig
 
 #: Real motion capture used as an unseen test motion when Debian's assimp-testmodels is there.
 CMU_CLIP = Path("/usr/share/assimp/models/BVH/01_01.bvh")
@@ -351,8 +352,6 @@ def joint2coarse_splits(config: PipelineConfig) -> dict[str, list[str]]:
 def sim_config(config: PipelineConfig):
     """The simulation settings of a project (fabric, substeps): every proxy simulation of the
     project, and ``dng eval joint2coarse``'s, runs with these."""
-    from core.sim import SimConfig
-
     return SimConfig(
         fabric=config.fabric, substeps=config.sim_substeps, iterations=config.sim_iterations
     )

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from core.fileio import atomic_open, write_json
@@ -137,7 +140,6 @@ def _sim_bar(desc: str):
 
 def _baselines_worker(root: str, params: dict) -> dict:
     """Child-process entry: train the baselines of a project (one torch thread)."""
-    from pipeline.config import PipelineConfig
 
     def log(message: str) -> None:
         print(f"[baselines]{message}", file=sys.stderr, flush=True)
@@ -148,14 +150,9 @@ def _baselines_worker(root: str, params: dict) -> dict:
 def _start_baselines(project: Project, config: PipelineConfig, log) -> Callable[[], dict]:
     """Train the baselines beside our renderer when there is a core for each (each trains with
     ``torch_threads`` threads), else one after the other. Returns a call that waits for them."""
-    import os
-
     if not config.baselines:
         return dict
     if (os.cpu_count() or 1) >= 2 * config.torch_threads:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         future = pool.submit(_baselines_worker, str(project.root), config.as_params())
         log(f"  training the baselines ({', '.join(config.baselines)}) in a second process")

@@ -36,10 +36,21 @@ from pathlib import Path
 
 import numpy as np
 
+from core.body.mannequin import make_body
+from core.body.skinning import pose_body
 from core.compositing import fit_image, load_image, recomposite, surface_coverage
 from core.errors import InputError
 from core.fileio import atomic_path, write_json
-from pipeline.config import Log, quiet
+from core.project import Project
+from core.shading import ShadingConfig, write_png
+from core.sim import load_cache
+from pipeline.config import Log, project_config, quiet
+from pipeline.playback import RENDERER_MODEL
+from pipeline.stages.dataset import stage_dataset
+from pipeline.stages.joint2coarse import stage_joint2coarse
+from pipeline.stages.motions import stage_motions
+from pipeline.stages.simulate import stage_simulate
+from training.dataset import GarmentDataset
 
 #: Sub-folder of a project that holds fine-tuned models.
 FINETUNE_DIR = "finetune"
@@ -65,13 +76,7 @@ class BackdropDataset:
     """
 
     def __init__(self, base, images: Sequence[np.ndarray], shading=None):
-        from core.body.mannequin import make_body
-        from core.body.skinning import pose_body
         from core.motion.load import load_motion
-        from core.project import Project
-        from core.shading import ShadingConfig
-        from core.sim import load_cache
-        from pipeline.config import project_config
 
         if not images:
             raise InputError("background fine-tuning needs at least one image")
@@ -184,8 +189,6 @@ def check_name(name: str) -> str:
 
 def parent_renderer(project_root: str | os.PathLike, renderer_path=None) -> Path:
     """The trained renderer to start from (InputError naming it when missing)."""
-    from pipeline.playback import RENDERER_MODEL
-
     path = Path(renderer_path) if renderer_path else Path(project_root).joinpath(*RENDERER_MODEL)
     if not path.is_file():
         raise InputError("no trained renderer to fine-tune: train one first", path)
@@ -209,8 +212,6 @@ def finetune_background_images(
     log, ``backdrop-K.png`` (the images as given, for playback) and ``finetune.json``.
     ``steps`` defaults to the model's ``background_finetune_steps``.
     """
-    from core.shading import write_png
-    from training.dataset import GarmentDataset
     from training.renderer.train import finetune_background
 
     root = Path(project_root)
@@ -265,13 +266,6 @@ def finetune_body_shape(
 
     Stages already done in the sub-project with the same inputs are reused.
     """
-    from core.project import Project
-    from pipeline.config import project_config
-    from pipeline.stages.dataset import stage_dataset
-    from pipeline.stages.joint2coarse import stage_joint2coarse
-    from pipeline.stages.motions import stage_motions
-    from pipeline.stages.simulate import stage_simulate
-    from training.dataset import GarmentDataset
     from training.renderer.train import finetune_body
 
     root = Path(project_root)

@@ -22,8 +22,11 @@ import numpy as np
 
 from core.errors import InputError
 from core.fileio import write_json
+from core.mesh import load_mesh
 from core.motion.motion import Motion
+from core.motion.procedural import PROCEDURAL_KINDS
 from core.project import Project
+from core.sim import load_cache, save_cache
 from pipeline.config import Log, MotionSpec, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import motion_from_spec
 
@@ -64,7 +67,6 @@ def eval_motion(
         Unknown kind, bad or unreadable BVH, a start past the clip's end, ``frames`` < 1.
     """
     from core.motion.load import load_motion, resample
-    from core.motion.procedural import PROCEDURAL_KINDS
 
     if frames is not None and frames < 1:
         raise InputError(f"--frames must be at least 1, got {frames}", motion)
@@ -117,7 +119,6 @@ def simulate_cached(
     folder : Path of the cache entry
     cached : bool, whether it came from the cache
     """
-    from core.sim import load_cache, save_cache
     from core.sim.simulate import simulate
 
     mesh, proxy_file = project_proxy(project)
@@ -232,8 +233,6 @@ def evaluate_on_motion(
 
 def project_proxy(project: Project):
     """The project's proxy in its rest pose (``proxy/positions.obj``) and that file's path."""
-    from core.mesh import load_mesh
-
     path = project.path("proxy", "positions.obj")
     if not path.is_file():
         raise InputError("the project has no proxy: run dng demo or dng proxy first", path)

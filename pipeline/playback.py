@@ -20,14 +20,31 @@ One Playback is not thread-safe: a GUI drives it from one worker thread.
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from core.camera import Camera
+from core.body.mannequin import make_body
+from core.body.skinning import pose_body
+from core.camera import Camera, follow_camera
+from core.compositing import fit_image, recomposite, surface_coverage
 from core.errors import InputError
+from core.features import FeatureConfig, joint_window
+from core.fileio import atomic_path
+from core.mesh import Mesh, load_mesh
+from core.motion.mapping import canonical_positions
+from core.motion.procedural import PROCEDURAL_KINDS, make_motion
+from core.motion.retarget import retarget
+from core.project import Project
+from core.shading import ShadingConfig, render_background, render_views
+from core.sim import load_cache
+from pipeline.config import project_config
+from pipeline.stages.dataset import dataset_rig
+from pipeline.stages.motions import load_project_motion
 
 #: Frames of a procedural motion when no count is given.
 DEFAULT_PROCEDURAL_FRAMES = 90
@@ -62,12 +79,6 @@ def load_motion_for(
     project motion's name when it is one (so its simulation can be shown beside it).
     """
     from core.motion.load import MOTION_FILE_SUFFIXES, load_motion, resample
-    from core.motion.mapping import canonical_positions
-    from core.motion.procedural import PROCEDURAL_KINDS, make_motion
-    from core.motion.retarget import retarget
-    from core.project import Project
-    from pipeline.config import project_config
-    from pipeline.stages.motions import load_project_motion
 
     project = project if isinstance(project, Project) else Project(project)
     config = project_config(project)
@@ -142,11 +153,6 @@ class Playback:
         joint2coarse_path: str | os.PathLike | None = None,
         shading=None,
     ):
-        from core.body.mannequin import make_body
-        from core.mesh import load_mesh
-        from core.project import Project
-        from core.shading import ShadingConfig
-        from pipeline.config import project_config
         from training.joint2coarse import load_model
 
         root = Path(project_root)
@@ -204,7 +210,6 @@ class Playback:
         Predicts the proxy of every frame with Joint2Coarse (one batch) and poses the body;
         resets the renderer's stream.
         """
-        from core.body.skinning import pose_body
         from training.joint2coarse import joint2coarse_inputs, predict_proxy
 
         if motion.num_frames < 1:
@@ -261,8 +266,6 @@ class Playback:
 
     def joint_window(self, t: int) -> np.ndarray:
         """Joints at the feature frame offsets before t: (K, 19, 3) float32."""
-        from core.features import FeatureConfig, joint_window
-
         return joint_window(self.joints, self._frame(t), FeatureConfig().frame_offsets)
 
     def simulated_proxy(self, name: str | None = None) -> np.ndarray | None:
@@ -280,8 +283,6 @@ class Playback:
 
     def simulated_target(self, name: str | None = None):
         """The simulated detailed target of a project motion (core.sim.SimCache), or None."""
-        from core.sim import load_cache
-
         name = name or (None if self.motion is None else self.motion.meta.get("project_motion"))
         if not name:
             return None
@@ -295,8 +296,6 @@ class Playback:
     def garment_box(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) (3,) float64 corners of the rest target garment's box (the data set frames it)."""
         if self._garment_box is None:
-            from core.mesh import load_mesh
-
             target = self.project.path("garment", "target.obj")
             if target.is_file():
                 v = load_mesh(target)[0].vertices
@@ -322,9 +321,6 @@ class Playback:
         radius, the middle of its range by default); azimuth 0 looks at the front (+Z);
         the target moves with the root's horizontal position at frame t.
         """
-        from core.camera import follow_camera
-        from pipeline.stages.dataset import dataset_rig
-
         t = self._frame(t)
         lo, hi = self.garment_box()
         rig = dataset_rig(self.config, np.stack([lo, hi]))
@@ -346,14 +342,10 @@ class Playback:
 
     def background(self, t: int, camera: Camera) -> np.ndarray:
         """The body alone at frame t from ``camera``: (H, W, 3) uint8 (the data set's look)."""
-        from core.mesh import Mesh
-        from core.shading import render_background
-
         body = Mesh(self.body_vertices(t), self.body_faces)
         image = render_background(body, camera, self.shading)
         if self.backdrop is None:
             return image
-        from core.compositing import fit_image, recomposite, surface_coverage
 
         coverage = surface_coverage(body.vertices, body.faces, camera, self.shading.supersample)
         backdrop = fit_image(self.backdrop, camera.width, camera.height)
@@ -361,9 +353,6 @@ class Playback:
 
     def proxy_image(self, t: int, camera: Camera) -> np.ndarray:
         """Joint2Coarse's proxy shaded on the body at frame t: (H, W, 3) uint8."""
-        from core.mesh import Mesh
-        from core.shading import render_views
-
         proxy = Mesh(self.proxy_vertices(t), self.proxy_faces, self.proxy_uvs)
         body = Mesh(self.body_vertices(t), self.body_faces)
         return render_views(proxy, body, [camera], self.shading)[0].image
@@ -372,9 +361,6 @@ class Playback:
         """What to show beside the neural render: the simulated detailed target (ground
         truth) for a project motion that has one, else the Joint2Coarse proxy on the body.
         Returns ((H, W, 3) uint8, label)."""
-        from core.mesh import Mesh
-        from core.shading import render_views
-
         t = self._frame(t)
         sim = self.simulated_target()
         if sim is not None and sim.num_frames >= self.num_frames:
@@ -487,14 +473,10 @@ class FrameWriter:
         self._atomic = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.kind == "png":
-            import tempfile
-
             self._tmp = Path(
                 tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
             )
         else:
-            from core.fileio import atomic_path
-
             self._atomic = atomic_path(self.path)
             self._tmp = self._atomic.__enter__()
 
@@ -571,7 +553,6 @@ class FrameWriter:
         return self.path
 
     def _place_folder(self) -> None:
-        import shutil
 
         target = self.path
         if target.is_dir() and not any(target.iterdir()):
@@ -593,8 +574,6 @@ class FrameWriter:
 
     def abort(self) -> None:
         """Drop what was written; ``path`` stays as it was."""
-        import shutil
-
         if self._ffmpeg is not None:
             try:
                 self._ffmpeg.close()

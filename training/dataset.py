@@ -14,8 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from core.camera import camera_from_dict
 from core.errors import InputError
-from core.features import FeatureConfig
+from core.features import FeatureConfig, interpolate, joint_window, vertex_motion_features
+from core.mesh import load_mesh
+from core.raster import rasterize
+from core.shading import colorize_scalar, colorize_uv, contact_sheet, headlight_shading, write_png
 
 #: Keys and shapes of one sample (channels first; a DataLoader adds a leading batch axis).
 SAMPLE_KEYS = {
@@ -57,8 +61,6 @@ class ProxyFrames:
 
 def load_proxy_frames(project_root: str | Path, positions: np.ndarray) -> ProxyFrames:
     """The project's proxy topology and UVs around a (T, Vs, 3) positions cache."""
-    from core.mesh import load_mesh
-
     root = Path(project_root)
     proxy, _ = load_mesh(root / "proxy" / "proxy.obj")
     seams = np.load(root / "proxy" / "seams.npz")["seam_map"]
@@ -97,7 +99,6 @@ class GarmentDataset:
         split: str | None = None,
         proxy_positions: np.ndarray | None = None,
     ):
-        from core.camera import camera_from_dict
         from core.motion.load import load_motion
         from training.joint2coarse import joint2coarse_inputs
 
@@ -153,10 +154,6 @@ class GarmentDataset:
     def proxy_maps(self, t: int, camera) -> dict[str, np.ndarray]:
         """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W) and grey
         headlight shading (1, H, W) at frame t."""
-        from core.features import interpolate, joint_window, vertex_motion_features
-        from core.raster import rasterize
-        from core.shading import headlight_shading
-
         v = self.proxy.vertices(t)
         frags = rasterize(v, self.proxy.faces, camera)
         window = joint_window(self.joints, t, self.features.frame_offsets)
@@ -193,8 +190,6 @@ class GarmentDataset:
 
     def contact_sheet(self, i: int, path: str | Path) -> None:
         """One sample's frames as a PNG: images, backgrounds, masks, proxy UV maps, a feature."""
-        from core.shading import colorize_scalar, colorize_uv, contact_sheet, write_png
-
         s = self[i]
         tiles, labels = [], []
         for j, name in enumerate(("t-1", "t", "t+1")):

@@ -3,6 +3,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from core.errors import InputError
+
 #: Known benches, in the order ``dng bench --help`` lists them.
 BENCHES = ("proxy", "sim", "raster", "render", "train", "trade", "placement", "all")
 #: Benches that measure a trained project (``--project DIR``, required).
@@ -25,10 +29,6 @@ def project_test_sets(root, config) -> list[str]:
     ``config.test_motions`` first, in its order, then any others by name; never the training
     motion (its test set, from unseen cameras, is the evaluation's protocol P, not an unseen
     motion). InputError when there is none."""
-    from pathlib import Path
-
-    from core.errors import InputError
-
     root = Path(root)
     have = sorted(
         p.parent.name

@@ -13,15 +13,21 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import sys
 import time
+from pathlib import Path
+
+from app.bench import BENCHES, PROJECT_BENCHES, add_output_arguments
+from app.commands import present_modules
+from core.errors import InputError
+from core.fileio import write_json
 
 HELP = "run every bench with its defaults into subfolders, and a summary JSON"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
 
     add_output_arguments(parser)
     parser.add_argument(
@@ -36,15 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def bench_names() -> list[str]:
     """Every bench but this one, in :data:`app.bench.BENCHES` order."""
-    from app.bench import BENCHES
-
     return [name for name in BENCHES if name != "all"]
 
 
 def load_benches(names: list[str]) -> dict:
     """name -> bench module, for the modules that exist."""
-    from app.commands import present_modules
-
     return dict(present_modules("app.bench", names))
 
 
@@ -56,12 +58,6 @@ def default_args(module, argv: list[str]) -> argparse.Namespace:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    from pathlib import Path
-
-    from app.bench import PROJECT_BENCHES
-    from core.errors import InputError
-    from core.fileio import write_json
 
     names = bench_names()
     if args.only:

@@ -32,6 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
+from app.bench import add_output_arguments, project_test_sets
+from core.errors import InputError
+from core.fileio import atomic_path, write_json
+from core.project import Project
+from core.sim import load_cache
+from pipeline.config import project_config
+from pipeline.stages.evaluate import eval_methods
+from pipeline.stages.motions import load_project_motion
+from training.dataset import GarmentDataset
+
 HELP = "image error of every method as Joint2Coarse's proxy error shrinks to simulation's"
 
 #: Default scales of Joint2Coarse's error (0: the simulated proxy; 1: Joint2Coarse's own).
@@ -41,7 +51,6 @@ PAPER_RATIO = 0.116 / 0.204
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
 
     add_output_arguments(parser)
     parser.add_argument("--project", required=True, help="a trained project folder (dng demo)")
@@ -80,8 +89,6 @@ def blend_positions(sim: np.ndarray, pred: np.ndarray, scale: float) -> np.ndarr
     -------
     (T, V, 3) float32 ``sim + scale * (pred - sim)``, computed in float64.
     """
-    from core.errors import InputError
-
     sim, pred = np.asarray(sim, np.float64), np.asarray(pred, np.float64)
     if sim.shape != pred.shape or sim.ndim != 3 or sim.shape[-1] != 3:
         raise InputError(f"proxies must be the same (T, V, 3), got {sim.shape} and {pred.shape}")
@@ -92,8 +99,6 @@ def blend_positions(sim: np.ndarray, pred: np.ndarray, scale: float) -> np.ndarr
 
 def check_scales(scales) -> list[float]:
     """Sorted distinct scales; InputError for a negative or non-finite one."""
-    from core.errors import InputError
-
     for s in scales:
         if not (math.isfinite(s) and s >= 0):
             raise InputError(f"--scales {s!r}: each must be a finite number >= 0")
@@ -115,9 +120,6 @@ def ratios(mse: dict[str, float]) -> dict[str, float]:
 def project_methods(project, config, names: list[str] | None) -> dict[str, Path]:
     """name -> model file of the methods ``dng eval`` renders on Joint2Coarse's proxy from the
     project's own data (the template ablation renders another project's proxy: left out)."""
-    from core.errors import InputError
-    from pipeline.stages.evaluate import eval_methods
-
     found = {
         name: path
         for name, (path, source, root) in eval_methods(project, config).items()
@@ -139,9 +141,6 @@ def project_methods(project, config, names: list[str] | None) -> dict[str, Path]
 
 def project_motions(root: Path, config, names: list[str] | None) -> list[str]:
     """Test motions with a test set, a Joint2Coarse prediction and a simulated proxy."""
-    from app.bench import project_test_sets
-    from core.errors import InputError
-
     order = project_test_sets(root, config)
     if names is not None:
         missing = [n for n in names if n not in order]
@@ -163,9 +162,6 @@ def project_motions(root: Path, config, names: list[str] | None) -> list[str]:
 
 def _proxies(project, motions: list[str], autoencoder: bool) -> dict[str, dict]:
     """motion -> {"sim": (T, V, 3), "pred": ..., and "autoencoder": ... when asked}."""
-    from core.errors import InputError
-    from core.sim import load_cache
-    from pipeline.stages.motions import load_project_motion
     from training.joint2coarse import joint2coarse_inputs, load_model, reconstruct_proxy
 
     net = load_model(project.path("joint2coarse", "joint2coarse.pt")) if autoencoder else None
@@ -201,7 +197,6 @@ def score(project, models: dict, motions: list[str], positions: dict[str, np.nda
     positions : motion -> (T, V, 3) proxy. Returns ``{"methods": name -> pooled summary,
     "motions": motion -> name -> MSE mean}``.
     """
-    from training.dataset import GarmentDataset
     from training.evaluate import EvalConfig, evaluate_motion
     from training.metrics import FrameMetrics
 
@@ -227,10 +222,6 @@ def score(project, models: dict, motions: list[str], positions: dict[str, np.nda
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from core.errors import InputError
-    from core.fileio import write_json
-    from core.project import Project
-    from pipeline.config import project_config
     from training.baselines import load_for_evaluation
     from training.joint2coarse import vertex_errors
 
@@ -354,8 +345,6 @@ def plot(rows: list[dict], path, title: str = "") -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from core.fileio import atomic_path
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2), dpi=100)
     line = [r for r in rows if r["scale"] is not None]

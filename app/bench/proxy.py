@@ -8,6 +8,15 @@ garments of :mod:`core.proxy.testing` otherwise, and always a 50k-vertex pleated
 from __future__ import annotations
 
 import argparse
+import json
+import time
+from pathlib import Path
+
+from app.bench import add_output_arguments
+from core.errors import InputError
+from core.fileio import atomic_path, write_json
+from core.mesh import validate_mesh
+from core.proxy import ProxyConfig, derive_proxy, testing
 
 HELP = "proxy derivation: time and Hausdorff error for several vertex budgets"
 
@@ -18,7 +27,6 @@ BUILTIN_GARMENTS = ("multilayer-skirt", "double-skirt", "tango-skirt", "pleated-
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
 
     add_output_arguments(parser)
     parser.add_argument(
@@ -38,10 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def garments(names: list[str], synthetic: bool) -> dict:
     """Name -> Mesh for the bench; ``stress-50k`` is always available."""
-    from core.errors import InputError
-    from core.mesh import validate_mesh
-    from core.proxy import testing
-
     makers = {
         "stress-50k": lambda: testing.skirt_tube(
             folds=30, fold_depth=0.015, n_around=400, n_along=126
@@ -78,13 +82,6 @@ def garments(names: list[str], synthetic: bool) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import time
-    from pathlib import Path
-
-    from core.errors import InputError
-    from core.fileio import write_json
-    from core.proxy import ProxyConfig, derive_proxy
 
     try:
         targets = [int(t) for t in args.targets.split(",") if t.strip()]
@@ -156,8 +153,6 @@ def plot(rows: list[dict], path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.ticker import NullFormatter
-
-    from core.fileio import atomic_path
 
     ticks = sorted({r["target_verts"] for r in rows})
     fig, (ax_err, ax_time) = plt.subplots(1, 2, figsize=(11, 4.2))

@@ -17,9 +17,37 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
+from pathlib import Path
 
 import numpy as np
+
+from app.bench import add_output_arguments
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.camera import CameraRigConfig, random_cameras
+from core.errors import InputError
+from core.features import (
+    FeatureConfig,
+    interpolate,
+    motion_feature_map,
+    uv_map,
+    vertex_motion_features,
+)
+from core.fileio import atomic_path, write_json
+from core.mesh import Mesh
+from core.raster import MeshScene, RasterConfig, rasterize
+from core.shading import (
+    Material,
+    ShadingConfig,
+    colorize_scalar,
+    colorize_uv,
+    contact_sheet,
+    render_ground_truth,
+    render_views,
+    write_png,
+)
+from core.skeleton import CANONICAL_JOINTS
 
 HELP = "rasterization + UV + motion-feature maps per view of a 2k-vertex proxy"
 
@@ -41,8 +69,6 @@ def skirt_mesh(rings: int = 40, segments: int = 50, waist_y: float = 1.0, length
 
     The waist is slightly elliptic like a body; the defaults give 2040 vertices, 3900 faces.
     """
-    from core.mesh import Mesh
-
     s = np.linspace(0.0, 1.0, rings)  # 0 at the waist, 1 at the hem
     th = np.linspace(0.0, 2.0 * math.pi, segments + 1)
     r = waist_radius + (hem_radius - waist_radius) * s**0.8
@@ -70,10 +96,6 @@ def capsule_body(shape=None):
     joints : (19, 3) float32, the canonical joints (``CANONICAL_JOINTS`` order).
     """
     import trimesh
-
-    from core.body.shape import BodyShape, mannequin_skeleton
-    from core.mesh import Mesh
-    from core.skeleton import CANONICAL_JOINTS
 
     skel = mannequin_skeleton(shape or BodyShape())
     rest = skel.rest_positions().astype(np.float64)
@@ -131,7 +153,6 @@ def swaying_joint_window(joints: np.ndarray, offsets=(0, 2, 4, 6, 8), amplitude:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
 
     add_output_arguments(parser)
     parser.add_argument(
@@ -166,13 +187,6 @@ def measure(sizes=DEFAULT_SIZES, repeats: int = 5, views: int = 10, threads: int
     (the minimum shows the cost on an idle machine when others share the CPUs);
     ``view_cpu_ms`` is the process CPU time of a view (all threads), without the frame share.
     """
-    import os
-
-    from core.camera import CameraRigConfig, random_cameras
-    from core.errors import InputError
-    from core.features import FeatureConfig, interpolate, uv_map, vertex_motion_features
-    from core.raster import MeshScene, RasterConfig
-
     if repeats < 1 or views < 1 or any(s <= 0 for s in sizes):
         raise InputError("repeats, views and sizes must be positive")
     proxy = skirt_mesh()
@@ -249,9 +263,6 @@ def measure(sizes=DEFAULT_SIZES, repeats: int = 5, views: int = 10, threads: int
 def measure_ground_truth(sizes=DEFAULT_SIZES, views: int = 2, seed: int = 0) -> list[dict]:
     """Time :func:`core.shading.render_views` (ground truth + body-only background) per view:
     the skirt (checker pattern) on the capsule body, default shading (3 x 3 supersampling)."""
-    from core.camera import CameraRigConfig, random_cameras
-    from core.shading import Material, ShadingConfig, render_views
-
     proxy = skirt_mesh()
     body, _ = capsule_body()
     cfg = ShadingConfig(garment=Material(pattern="checker"))
@@ -283,8 +294,6 @@ def sheet_body():
         from core.body.mannequin import make_body
     except ImportError:
         return capsule_body()
-    from core.mesh import Mesh
-    from core.skeleton import CANONICAL_JOINTS
 
     body = make_body()
     rest = body.skeleton.rest_positions()
@@ -297,20 +306,6 @@ def write_sheet(path: str, size: int = 256, seed: int = 0) -> None:
 
     The skirt proxy (checker pattern from its UVs) on the mannequin when it is installed.
     """
-    from core.camera import CameraRigConfig, random_cameras
-    from core.features import FeatureConfig, motion_feature_map, uv_map
-    from core.raster import rasterize
-    from core.shading import (
-        Material,
-        ShadingConfig,
-        colorize_scalar,
-        colorize_uv,
-        contact_sheet,
-        render_ground_truth,
-        write_png,
-    )
-    from core.skeleton import CANONICAL_JOINTS
-
     proxy = skirt_mesh()
     body, joints = sheet_body()
     window = swaying_joint_window(joints)
@@ -341,8 +336,6 @@ def plot(report: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from core.fileio import atomic_path
-
     rows = report["results"]
     x = np.arange(len(rows))
     fig, ax = plt.subplots(figsize=(6.4, 3.4))
@@ -369,9 +362,6 @@ def plot(report: dict, path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from core.fileio import write_json
 
     report = measure(
         args.sizes, args.repeats, args.views, args.threads, args.half, args.seed, args.framing

@@ -29,11 +29,20 @@ preset), Joint2Coarse under 0.5 ms per frame there.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+from app.bench import add_output_arguments
+from core.camera import crop_camera, make_camera
+from core.errors import InputError
+from core.features import FeatureConfig, joint_window
+from core.fileio import atomic_path, write_json
+from pipeline.playback import Playback, load_motion_for
 
 HELP = "neural rendering: Joint2Coarse + raster/features + network ms per frame vs fps targets"
 
@@ -87,8 +96,6 @@ def synthetic_setup(frames: int, resolution: int = 64) -> BenchSetup:
     """The synthetic skirt (``resolution`` columns: about 2k vertices at 64) over a flat grey."""
     import torch
 
-    from core.camera import make_camera
-    from core.features import joint_window
     from training.joint2coarse import Joint2CoarseConfig, joint2coarse_inputs
     from training.joint2coarse.model import Joint2CoarseNet
     from training.joint2coarse.synthetic import synthetic_walk
@@ -115,7 +122,6 @@ def synthetic_setup(frames: int, resolution: int = 64) -> BenchSetup:
 
 def project_setup(root, frames: int) -> BenchSetup:
     """A trained project: its training motion (procedural when shorter than ``frames``)."""
-    from pipeline.playback import Playback, load_motion_for
     from training.joint2coarse import joint2coarse_inputs
 
     pb = Playback(root)
@@ -173,7 +179,6 @@ def time_renderer(net, setup: BenchSetup, size: int, device: str = "cpu") -> dic
     """
     import torch
 
-    from core.camera import crop_camera
     from training.renderer import FrameState, NeuralRenderer
 
     r = NeuralRenderer(net, setup.faces, setup.uvs, device=device)
@@ -227,7 +232,6 @@ def measure(
     """
     import torch
 
-    from core.errors import InputError
     from training.renderer import PRESETS, RenderNet
 
     rows = []
@@ -307,7 +311,6 @@ def synthetic_bundle(frames: int, resolution: int = 64) -> dict:
     what a trained one costs and its proxy stays a skirt in view."""
     import torch
 
-    from core.features import FeatureConfig
     from training.joint2coarse import Joint2CoarseConfig, joint2coarse_inputs
     from training.joint2coarse.descriptor import heading_rotations, to_root_frame
     from training.joint2coarse.model import MODEL_FORMAT, Joint2CoarseNet
@@ -369,7 +372,6 @@ def with_renderer(bundle: dict, name: str) -> dict:
     weights (speed does not depend on the weights)."""
     import torch
 
-    from core.errors import InputError
     from training.renderer import PRESETS, RenderNet
 
     if name == "project":
@@ -635,7 +637,6 @@ def format_row(r: dict) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
 
     add_output_arguments(parser)
     parser.add_argument(
@@ -681,13 +682,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    from pathlib import Path
 
     import torch
-
-    from core.errors import InputError
-    from core.fileio import write_json
 
     cuda = args.device.startswith("cuda")
     if cuda and not torch.cuda.is_available():
@@ -789,8 +785,6 @@ def plot(rows: list[dict], path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from core.fileio import atomic_path
 
     labels = [f"{r.get('path', '')} {r['preset']}\n{r['size']}px t{r['threads']}" for r in rows]
     x = np.arange(len(rows))

@@ -18,8 +18,23 @@ count only the clip's solver steps and checks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
+from pathlib import Path
+
+import numpy as np
+
+from app.bench import add_output_arguments
+from core.body.shape import BodyShape
+from core.errors import InputError
+from core.fileio import atomic_path, write_json
+from core.mesh import load_mesh
+from core.motion.procedural import PROCEDURAL_KINDS, make_motion
+from core.sim.config import QUALITY, SimConfig
+from pipeline.config import CMU_CLIP, MotionSpec, PipelineConfig
+from pipeline.stages.motions import motion_from_spec
+from templates.garments import make_garment
 
 HELP = "cloth simulation: each quality's distance to a run twice as fine, ms/frame, strain"
 
@@ -31,8 +46,6 @@ TARGET_P95_MM = 25.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
-    from core.sim.config import QUALITY
 
     add_output_arguments(parser)
     parser.add_argument(
@@ -67,7 +80,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _pairs(text: str) -> list[tuple[int, int]]:
-    from core.errors import InputError
 
     try:
         out = [tuple(int(x) for x in item.split(",")) for item in text.split(";") if item]
@@ -80,9 +92,6 @@ def _pairs(text: str) -> list[tuple[int, int]]:
 
 def settings_to_measure(qualities: str, extra: str) -> list[tuple[str, tuple[int, int]]]:
     """(label, (substeps, iterations)) for the named qualities, then the extra pairs."""
-    from core.errors import InputError
-    from core.sim.config import QUALITY
-
     out = []
     for name in [q for q in qualities.split(",") if q]:
         if name not in QUALITY:
@@ -96,11 +105,6 @@ def settings_to_measure(qualities: str, extra: str) -> list[tuple[str, tuple[int
 
 def bench_motion(clip: str, frames: int, seed: int, shape):
     """The clip's motion on the mannequin of ``shape``, or None for a CMU file not here."""
-    from core.errors import InputError
-    from core.motion.procedural import PROCEDURAL_KINDS, make_motion
-    from pipeline.config import CMU_CLIP, MotionSpec, PipelineConfig
-    from pipeline.stages.motions import motion_from_spec
-
     if clip in PROCEDURAL_KINDS:
         return make_motion(clip, frames, 30.0, seed, shape)
     if clip == "cmu-01_01":
@@ -113,17 +117,11 @@ def bench_motion(clip: str, frames: int, seed: int, shape):
 
 def distance_stats(positions, reference) -> tuple[float, float]:
     """Mean and 95th percentile (mm) of the vertex distances between two (T, V, 3) runs."""
-    import numpy as np
-
     d = np.linalg.norm(np.asarray(positions, np.float64) - reference, axis=-1)
     return float(d.mean() * 1000), float(np.percentile(d, 95) * 1000)
 
 
 def _garment(spec: str, resolution: float, shape):
-    from pathlib import Path
-
-    from core.mesh import load_mesh
-    from templates.garments import make_garment
 
     if Path(spec).exists():
         return load_mesh(spec)[0]
@@ -131,12 +129,7 @@ def _garment(spec: str, resolution: float, shape):
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
-    from core.body.shape import BodyShape
-    from core.errors import InputError
-    from core.fileio import write_json
-    from core.sim.config import SimConfig
     from core.sim.simulate import simulate
 
     if args.frames < 2:
@@ -240,7 +233,6 @@ def format_table(rows: list[dict], vertices: int, frames: int) -> str:
 
 
 def _quiet():
-    import contextlib
 
     return contextlib.redirect_stdout(sys.stderr)
 
@@ -250,8 +242,6 @@ def _plot(path, rows, vertices: int) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from core.fileio import atomic_path
 
     fig, ax = plt.subplots(figsize=(7, 4.5), dpi=100)
     for clip in dict.fromkeys(r["clip"] for r in rows):

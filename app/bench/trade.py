@@ -50,11 +50,34 @@ Pareto front drawn) and the trained renderers under ``OUT/runs/`` (never into th
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import multiprocessing
 import os
+import resource
+import shutil
+import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
+
+from app.bench import add_output_arguments, project_test_sets
+from app.bench.render import DEFAULT_FRAMES, WARMUP, project_setup, time_joint2coarse, time_renderer
+from core.camera import resize_camera
+from core.errors import InputError
+from core.fileio import atomic_path, write_json
+from core.mesh import load_mesh
+from core.project import Project
+from core.proxy import ProxyConfig, derive_proxy
+from core.sim import SimConfig
+from core.sim.config import QUALITY
+from pipeline.config import project_config, renderer_config
+from pipeline.playback import Playback, load_motion_for
+from training.dataset import GarmentDataset
 
 HELP = "speed vs accuracy on a trained project: resolution x width, proxy size, neural vs sim"
 
@@ -72,8 +95,6 @@ PAPER_RATIO = 32.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
-    from app.bench.render import DEFAULT_FRAMES
 
     add_output_arguments(parser)
     parser.add_argument("--project", required=True, help="a trained project folder (dng demo)")
@@ -149,7 +170,6 @@ class ResizedDataset:
     """
 
     def __init__(self, base, size: int, keep_full: bool = False):
-        from core.errors import InputError
 
         width = base.samples[0][2].width if len(base) else size
         if size > width:
@@ -167,8 +187,6 @@ class ResizedDataset:
 
     def __getitem__(self, i: int) -> dict:
         import torch
-
-        from core.camera import resize_camera
 
         full = self.base[i]
         t, _, camera = self.base.samples[i]
@@ -215,8 +233,6 @@ class UpsampledRenderer:
 
 def parse_widths(texts: list[str]) -> list[tuple[int, int]]:
     """``["8/64", ...]`` -> ``[(8, 64), ...]``; InputError on anything else."""
-    from core.errors import InputError
-
     out = []
     for text in texts:
         try:
@@ -238,11 +254,6 @@ def default_widths(cfg) -> list[tuple[int, int]]:
 def check_project(root: Path, motion: str | None) -> tuple[object, str]:
     """The project's pipeline settings and the test motion to use; InputError naming what is
     missing (the folder, its data set, test set or Joint2Coarse)."""
-    from app.bench import project_test_sets
-    from core.errors import InputError
-    from core.project import Project
-    from pipeline.config import project_config
-
     if not root.is_dir():
         raise InputError("project folder not found", root)
     config = project_config(Project(root))
@@ -269,8 +280,6 @@ def check_project(root: Path, motion: str | None) -> tuple[object, str]:
 def setting_config(config, size: int, widths: tuple[int, int], steps: int):
     """The project's renderer configuration at ``size`` px with other widths and a step budget
     (no previews; one checkpoint at the end)."""
-    from pipeline.config import renderer_config
-
     return renderer_config(config).replace(
         image_size=int(size), base_width=widths[0], max_width=widths[1], steps=int(steps),
         preview_every=0, checkpoint_every=max(int(steps), 1),
@@ -282,7 +291,6 @@ def setting_config(config, size: int, widths: tuple[int, int], steps: int):
 
 def _child(name: str, kwargs: dict, threads: int, device: str) -> dict:
     """Run ``name(**kwargs)`` of this module and add the process's memory peaks."""
-    import resource
 
     import torch
 
@@ -302,16 +310,12 @@ def _child(name: str, kwargs: dict, threads: int, device: str) -> dict:
 def spawned(name: str, threads: int, device: str, **kwargs) -> dict:
     """``name(**kwargs)`` in a fresh spawned process (its own memory peak): its result dict,
     with ``peak_rss_mib``, ``rss_at_start_mib`` and on CUDA ``cuda_peak_mib``."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
         return pool.submit(_child, name, {**kwargs, "device": device}, threads, device).result()
 
 
 def _rss_now() -> float:
-    import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
@@ -319,11 +323,7 @@ def _rss_now() -> float:
 def train_setting(project: str, size: int, widths: tuple, steps: int, out_dir: str,
                   device: str) -> dict:  # fmt: skip
     """Train one setting's renderer into ``out_dir`` (from scratch)."""
-    import shutil
 
-    from core.project import Project
-    from pipeline.config import project_config
-    from training.dataset import GarmentDataset
     from training.renderer.train import train_renderer
 
     config = project_config(Project(project))
@@ -348,9 +348,7 @@ def infer_setting(project: str, model: str, size: int, frames: int, motion: str,
     """Time live playback of one renderer (then read the memory peak), then score it."""
     import torch
 
-    from app.bench.render import WARMUP, project_setup, time_joint2coarse, time_renderer
     from training.baselines.common import RendererAdapter
-    from training.dataset import GarmentDataset
     from training.evaluate import EvalConfig, evaluate_motion
     from training.renderer.train import load_model
 
@@ -383,15 +381,9 @@ def infer_setting(project: str, model: str, size: int, frames: int, motion: str,
 def proxy_axis(project: str, sizes: list, frames: int, device: str) -> dict:
     """Joint2Coarse streaming + raster/features ms per frame for proxies of other sizes:
     ``{"rows": [...]}``."""
-    from dataclasses import replace
 
     import torch
 
-    from app.bench.render import WARMUP, project_setup, time_joint2coarse, time_renderer
-    from core.mesh import load_mesh
-    from core.project import Project
-    from core.proxy import ProxyConfig, derive_proxy
-    from pipeline.config import project_config, renderer_config
     from training.joint2coarse.model import Joint2CoarseNet
     from training.renderer import RenderNet
 
@@ -436,10 +428,7 @@ def proxy_axis(project: str, sizes: list, frames: int, device: str) -> dict:
 
 def neural_playback(project: str, model: str, motion: str, frames: int, device: str) -> dict:
     """Joint2Coarse streaming + neural render of the test motion through :class:`Playback`."""
-    from types import SimpleNamespace
 
-    from app.bench.render import WARMUP, time_joint2coarse
-    from pipeline.playback import Playback, load_motion_for
     from training.joint2coarse import joint2coarse_inputs
 
     pb = Playback(project, device=device, renderer_path=model)
@@ -483,17 +472,8 @@ def simulate_target(
     clip is simulated again at :data:`core.sim.config.QUALITY` ``final``; ``setting`` says which
     one the reported ``ms_per_frame`` comes from.
     """
-    import contextlib
-    import sys
-    from dataclasses import replace
 
-    from core.mesh import load_mesh
-    from core.project import Project
-    from core.sim import SimConfig
-    from core.sim.config import QUALITY
     from core.sim.simulate import simulate
-    from pipeline.config import project_config
-    from pipeline.playback import load_motion_for
 
     project_obj = Project(project)
     config = project_config(project_obj)
@@ -582,11 +562,6 @@ def format_row(r: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
-    from core.errors import InputError
-    from core.fileio import write_json
-    from pipeline.config import renderer_config
 
     root = Path(args.project)
     config, motion = check_project(root, args.motion)
@@ -781,8 +756,6 @@ def plot(rows: list[dict], path, title: str = "") -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from core.fileio import atomic_path
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5), dpi=100)
     pts = _points(rows)

@@ -21,10 +21,21 @@ a GPU and the process's peak resident size on the CPU.
 from __future__ import annotations
 
 import argparse
+import functools
+import json
 import os
+import resource
+import tempfile
 import time
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
+
+from app.bench import add_output_arguments
+from app.bench.render import device_name
+from core.errors import InputError
+from core.fileio import write_json
 
 HELP = "renderer training: steps/s, peak memory and the share of each step waiting for data"
 #: Steps run before timing (allocator, cuDNN autotuning, worker start-up).
@@ -72,13 +83,9 @@ def measure_one(
     precision: str = "auto",
 ) -> dict:
     """Train ``steps`` timed steps (after :data:`WARMUP`); one row."""
-    import functools
-    import resource
-    from dataclasses import replace
 
     import torch
 
-    from app.bench.render import device_name
     from training.loader import batches
     from training.renderer import PRESETS
     from training.renderer.train import _Trainer, collate_samples
@@ -156,7 +163,6 @@ def format_row(r: dict) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from app.bench import add_output_arguments
     from training.renderer.config import PRECISIONS
 
     add_output_arguments(parser)
@@ -180,14 +186,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import tempfile
-    from pathlib import Path
 
     import torch
 
-    from core.errors import InputError
-    from core.fileio import write_json
     from training.renderer import PRESETS
 
     cuda = args.device.startswith("cuda")

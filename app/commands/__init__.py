@@ -4,6 +4,8 @@ Command modules import only argparse-level things at import time; the work (and 
 libraries) is imported inside the handler, so ``dng --help`` stays fast.
 """
 
+import importlib
+
 #: Subcommand modules in the order ``dng --help`` lists them. A module that is not there yet
 #: (a later issue's) is skipped.
 COMMANDS = (
@@ -17,8 +19,6 @@ def present_modules(package: str, names):
 
     Yields ``(name, module)``. An import error inside a module that exists is raised, not hidden.
     """
-    import importlib
-
     for name in names:
         try:
             module = importlib.import_module(f"{package}.{name}")

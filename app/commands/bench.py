@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import argparse
 
+from app.bench import BENCHES
 from app.commands import present_modules
 
 
 def register(subparsers) -> None:
-    from app.bench import BENCHES
 
     p = subparsers.add_parser(
         "bench",

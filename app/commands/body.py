@@ -3,6 +3,15 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from core.body.mannequin import DEFAULT_RESOLUTION, make_body
+from core.body.shape import BodyShape
+from core.body.skinning import pose_body
+from core.errors import InputError
+from core.mesh import Mesh, save_mesh
+from core.motion.mapping import canonical_positions
+from core.motion.retarget import retarget
 
 #: Mesh types ``dng body make`` writes.
 BODY_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb")
@@ -34,12 +43,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _make(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from core.body.mannequin import DEFAULT_RESOLUTION, make_body
-    from core.body.shape import BodyShape
-    from core.errors import InputError
-    from core.mesh import Mesh, save_mesh
 
     out = Path(args.out)
     if out.suffix.lower() not in BODY_SUFFIXES:
@@ -51,8 +54,6 @@ def _make(args: argparse.Namespace) -> int:
     motion = None
     if args.motion is not None:
         from core.motion.load import load_motion
-        from core.motion.mapping import canonical_positions
-        from core.motion.retarget import retarget
 
         source = load_motion(args.motion)
         frame = 0 if args.frame is None else args.frame
@@ -67,8 +68,6 @@ def _make(args: argparse.Namespace) -> int:
     vertices = body.vertices
     what = "rest pose"
     if motion is not None:
-        from core.body.skinning import pose_body
-
         r, p = motion.rotations[frame : frame + 1], motion.root_positions[frame : frame + 1]
         vertices = pose_body(body, (r, p))[0]
         what = f"frame {frame} of {args.motion}"

@@ -3,6 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
+
+from core.errors import InputError
+from core.project import Project
+from pipeline.config import project_config
+from pipeline.stages.dataset import stage_dataset
+from training.dataset import GarmentDataset
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,12 +33,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from core.errors import InputError
-    from core.project import Project
-    from pipeline.config import project_config
-    from pipeline.stages.dataset import stage_dataset
 
     project = Project(args.project)
     config = project_config(project)
@@ -47,8 +48,6 @@ def run(args: argparse.Namespace) -> int:
     out = stage_dataset(project, config, print)
     print(f"data set: {out}")
     if args.sheet:
-        from training.dataset import GarmentDataset
-
         GarmentDataset(project.root).contact_sheet(0, args.sheet)
         print(f"contact sheet: {args.sheet}")
     return 0

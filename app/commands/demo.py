@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from pipeline.config import preset
+from pipeline.demo import run_demo
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -28,8 +31,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.config import preset
-    from pipeline.demo import run_demo
 
     run_demo(preset(args.preset), args.out, preset_name=args.preset, force=args.force)
     return 0

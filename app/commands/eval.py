@@ -6,6 +6,19 @@ Joint2Coarse against the simulation on any motion."""
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from core.errors import InputError
+from core.project import Project
+from pipeline.config import available_test_motions, project_config
+from pipeline.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
+from pipeline.stages.ablations import check_ablation, stage_ablation
+from pipeline.stages.dataset import stage_testset
+from pipeline.stages.evaluate import stage_eval
+from pipeline.stages.simulate import stage_simulate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,7 +73,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.project == "joint2coarse" and args.j2c_project is not None:
         return run_joint2coarse(args)
-    from core.errors import InputError
 
     if args.j2c_project is not None or args.motion is not None:
         raise InputError(
@@ -70,13 +82,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_joint2coarse(args: argparse.Namespace) -> int:
-    import json
-    import sys
-
-    from core.errors import InputError
-    from core.project import Project
-    from pipeline.config import project_config
-    from pipeline.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
 
     if args.motion is None:
         raise InputError("dng eval joint2coarse needs --motion FILE.bvh or a procedural kind")
@@ -90,18 +95,6 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
 
 
 def run_renderers(args: argparse.Namespace) -> int:
-    import json
-    import sys
-    from dataclasses import replace
-    from pathlib import Path
-
-    from core.errors import InputError
-    from core.project import Project
-    from pipeline.config import available_test_motions, project_config
-    from pipeline.stages.ablations import check_ablation, stage_ablation
-    from pipeline.stages.dataset import stage_testset
-    from pipeline.stages.evaluate import stage_eval
-    from pipeline.stages.simulate import stage_simulate
 
     project = Project(args.project)
     config = project_config(project)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +34,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_torch(args: argparse.Namespace) -> int:
-    import os
 
     from pipeline.torch_export import export_bundle
 

@@ -3,6 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
+
+from core.body.shape import BodyShape
+from core.errors import InputError
+from core.project import Project
+from pipeline import finetune
+from pipeline.config import project_config
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,12 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
 
     import torch
-
-    from core.errors import InputError
-    from pipeline import finetune
 
     if args.steps is not None and args.steps < 1:
         raise InputError(f"--steps must be >= 1, got {args.steps}")
@@ -72,12 +76,6 @@ def run(args: argparse.Namespace) -> int:
             log=log,
         )
     else:
-        from pathlib import Path
-
-        from core.body.shape import BodyShape
-        from core.project import Project
-        from pipeline.config import project_config
-
         if not Path(args.project).is_dir():
             raise InputError("project folder not found", args.project)
         base = project_config(Project(args.project)).body

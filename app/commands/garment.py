@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from core.body.shape import BodyShape
+from core.errors import InputError
+from core.mesh import MESH_SUFFIXES, save_mesh
+from templates.garments import DEFAULT_TARGET, GARMENTS, build_garment
 
 
 def register(subparsers) -> None:
@@ -43,12 +49,6 @@ def register(subparsers) -> None:
 
 
 def _make(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from core.body.shape import BodyShape
-    from core.errors import InputError
-    from core.mesh import MESH_SUFFIXES, save_mesh
-    from templates.garments import build_garment
 
     out = Path(args.out)
     writable = tuple(s for s in MESH_SUFFIXES if s != ".gltf")
@@ -69,7 +69,6 @@ def _make(args: argparse.Namespace) -> int:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from templates.garments import DEFAULT_TARGET, GARMENTS
 
     for name, spec in GARMENTS.items():
         lo, hi = spec.resolution_range_mm

@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import os
+
+from app.gui import run as run_gui
+from app.gui.tour import run_tour
+from core.errors import InputError
 
 
 def register(subparsers) -> None:
@@ -27,9 +32,6 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-
-    from core.errors import InputError
 
     try:
         width, height = (int(x) for x in args.size.lower().split("x"))
@@ -38,11 +40,8 @@ def run(args: argparse.Namespace) -> int:
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         raise InputError("no display: set DISPLAY (for example run under xvfb-run)")
     if args.tour:
-        from app.gui.tour import run_tour
-
         if not args.project:
             raise InputError("--tour needs a trained PROJECT")
         return run_tour(args.project, args.tour, width=width, height=height)
-    from app.gui import run as run_gui
 
     return run_gui(args.project, width=width, height=height)

@@ -6,6 +6,13 @@ import argparse
 import json
 import math
 
+from core.body.shape import BodyShape
+from core.errors import InputError
+from core.motion.bvh import write_bvh
+from core.motion.mapping import canonical_positions
+from core.motion.procedural import PROCEDURAL_KINDS, make_motion
+from core.motion.retarget import retarget
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -107,10 +114,6 @@ def format_info(info: dict) -> str:
 
 
 def _make(args: argparse.Namespace) -> int:
-    from core.body.shape import BodyShape
-    from core.errors import InputError
-    from core.motion.bvh import write_bvh
-    from core.motion.procedural import PROCEDURAL_KINDS, make_motion
 
     if args.kind not in PROCEDURAL_KINDS:
         raise InputError(f"unknown motion kind {args.kind!r}; choose from {list(PROCEDURAL_KINDS)}")
@@ -126,15 +129,11 @@ def _make(args: argparse.Namespace) -> int:
 
 
 def _retarget(args: argparse.Namespace) -> int:
-    from core.body.shape import BodyShape
-    from core.motion.bvh import write_bvh
     from core.motion.load import load_motion
-    from core.motion.mapping import canonical_positions
 
     shape = BodyShape.parse(args.shape)
     motion = load_motion(args.file, fps=args.fps, scale=args.scale, mapping=args.mapping)
     positions = canonical_positions(motion)
-    from core.motion.retarget import retarget
 
     out = retarget(positions, motion.fps, shape, name=motion.name)
     write_bvh(args.out, out)

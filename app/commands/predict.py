@@ -7,7 +7,20 @@ CLO: the proxy with its UVs and, with ``--body``, the mannequin posed by the mot
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
+
+from core.body.mannequin import make_body
+from core.body.skinning import pose_body
+from core.errors import InputError
+from core.mesh import load_mesh
+from core.motion.mapping import canonical_positions
+from core.motion.retarget import retarget
+from core.project import Project
+from core.sim import SimCache, export_cache
+from core.usd import USD_SUFFIXES, UsdMesh, write_usd
+from pipeline.config import project_config, sim_config
+from training.dataset import load_proxy_frames
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,17 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_proxy(args: argparse.Namespace) -> int:
-    import time
 
-    from core.errors import InputError
-    from core.mesh import load_mesh
     from core.motion.load import load_motion, resample
-    from core.motion.mapping import canonical_positions
-    from core.motion.retarget import retarget
-    from core.project import Project
-    from core.sim import SimCache, export_cache
-    from core.usd import USD_SUFFIXES, write_usd
-    from pipeline.config import project_config
     from training.joint2coarse import joint2coarse_inputs, load_model, predict_proxy
 
     usd = Path(args.out).suffix.lower() in USD_SUFFIXES
@@ -69,7 +73,6 @@ def run_proxy(args: argparse.Namespace) -> int:
     proxy = load_mesh(project.path("proxy", "positions.obj"))[0]
     capsules = radii = None
     if args.push_out:  # the capsules the project's simulation collides with
-        from pipeline.config import sim_config
         from training.joint2coarse.collision import simulation_colliders
 
         top = float(proxy.vertices[:, 1].max())
@@ -95,9 +98,6 @@ def usd_meshes(project, config, motion, positions, faces, body: bool) -> list:
     (F, 3)); with the project's UV'd proxy (``proxy.obj``, ``seams.npz``) its topology is
     ``seam_map[uv_faces]`` and its UVs the face-varying ``st``, as the renderer sees them.
     With ``body``, also ``Body``: the project's mannequin skinned by ``motion`` (its joints)."""
-    from core.usd import UsdMesh
-    from training.dataset import load_proxy_frames
-
     uvs = uv_faces = None
     uv_file, seams = project.path("proxy", "proxy.obj"), project.path("proxy", "seams.npz")
     if uv_file.is_file() and seams.is_file():
@@ -105,9 +105,6 @@ def usd_meshes(project, config, motion, positions, faces, body: bool) -> list:
         faces, uvs, uv_faces = frames.seam_map[frames.faces], frames.uvs, frames.faces
     meshes = [UsdMesh("Proxy", positions, faces, uvs, uv_faces, double_sided=True)]
     if body:
-        from core.body.mannequin import make_body
-        from core.body.skinning import pose_body
-
         mannequin = make_body(config.body)
         meshes.append(UsdMesh("Body", pose_body(mannequin, motion), mannequin.faces))
     return meshes

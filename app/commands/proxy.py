@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
+
+import numpy as np
 
 from core.errors import InputError
+from core.fileio import write_json, write_npz
+from core.mesh import load_mesh, save_mesh
+from core.proxy import derive_proxy
+from core.proxy.config import LAYER_MODES, UNITS_M, ProxyConfig
 
 
 def register(subparsers) -> None:
-    from core.proxy.config import LAYER_MODES, UNITS_M, ProxyConfig
 
     d = ProxyConfig()
     p = subparsers.add_parser(
@@ -61,14 +68,6 @@ def load_template(name: str) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    from pathlib import Path
-
-    import numpy as np
-
-    from core.fileio import write_json, write_npz
-    from core.mesh import load_mesh, save_mesh
-    from core.proxy import ProxyConfig, derive_proxy
 
     config = ProxyConfig(
         target_verts=args.target_verts,

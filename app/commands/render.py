@@ -3,6 +3,24 @@
 from __future__ import annotations
 
 import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from core.camera import (
+    CAMERA_PATH_FORMAT,
+    CameraKey,
+    camera_from_dict,
+    camera_keys_from_dict,
+    load_cameras,
+    path_cameras,
+    resize_camera,
+)
+from core.compositing import load_image
+from core.errors import InputError
+from pipeline.playback import FrameWriter, Playback, load_motion_for
 
 #: Image size (pixels per side) of the built-in cameras when --size is not given.
 DEFAULT_SIZE = 256
@@ -81,17 +99,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def cameras_from_file(path) -> list:
     """Cameras of a JSON file: one camera dict, a list of them, or a ``save_cameras`` file;
     or the :class:`core.camera.CameraKey` s of a keyed camera path."""
-    import json
-    from pathlib import Path
-
-    from core.camera import (
-        CAMERA_PATH_FORMAT,
-        camera_from_dict,
-        camera_keys_from_dict,
-        load_cameras,
-    )
-    from core.errors import InputError
-
     path = Path(path)
     if not path.is_file():
         raise InputError("camera file not found", path)
@@ -119,8 +126,6 @@ def cameras_from_file(path) -> list:
 
 def camera_for_frame(pb, t: int, n: int, args, file_cameras) -> object:
     """The camera of frame t of n."""
-    from core.camera import CameraKey, path_cameras, resize_camera
-
     if file_cameras is not None and isinstance(file_cameras[0], CameraKey):
         size = args.size or DEFAULT_SIZE
         return path_cameras(file_cameras, [t], size, size)[0]
@@ -137,7 +142,6 @@ def camera_for_frame(pb, t: int, n: int, args, file_cameras) -> object:
 
 def labelled(images: list, labels: list[str]):
     """Images side by side, each with its label in the top-left corner: (H, W', 3) uint8."""
-    import numpy as np
     from PIL import Image, ImageDraw
 
     strip = Image.fromarray(np.concatenate(images, axis=1))
@@ -150,15 +154,9 @@ def labelled(images: list, labels: list[str]):
 
 
 def run(args: argparse.Namespace) -> int:
-    import time
-    from pathlib import Path
 
-    import numpy as np
     import torch
     from tqdm import tqdm
-
-    from core.errors import InputError
-    from pipeline.playback import FrameWriter, Playback, load_motion_for
 
     if args.size is not None and args.size < 8:
         raise InputError(f"--size must be at least 8 pixels, got {args.size}")
@@ -177,8 +175,6 @@ def run(args: argparse.Namespace) -> int:
         beside = Path(args.renderer).parent / "backdrop-0.png"
         backdrop = beside if beside.is_file() else None
     if backdrop is not None:
-        from core.compositing import load_image
-
         pb.set_backdrop(load_image(backdrop))
     motion = load_motion_for(pb.project, args.motion, frames=args.frames, seed=args.seed)
     pb.set_motion(motion)

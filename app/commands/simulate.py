@@ -22,9 +22,33 @@ Import a cache simulated elsewhere (OBJ-sequence folder, ``.pc2``, ``.mdd``, ``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
+
+import numpy as np
+
+from core.body.mannequin import make_body
+from core.body.shape import MANNEQUIN_JOINTS, BodyShape
+from core.body.skinning import pose_body
+from core.errors import InputError
+from core.fileio import write_json
+from core.mesh import MESH_SUFFIXES, load_mesh, weld_mesh
+from core.motion.mapping import canonical_positions
+from core.motion.procedural import make_motion
+from core.motion.retarget import retarget
+from core.sim.cache import (
+    SimCache,
+    export_cache,
+    import_cache,
+    load_cache,
+    save_cache,
+    unweld_cache,
+)
+from core.sim.config import QUALITY, SimConfig
+from core.sim.preview import preview_sheet
+from templates.garments import make_garment
 
 
 def register(subparsers) -> None:
@@ -82,18 +106,15 @@ def register(subparsers) -> None:
 
 
 def _garment(spec: str, shape):
-    from core.mesh import MESH_SUFFIXES, load_mesh
 
     if Path(spec).suffix.lower() in MESH_SUFFIXES or Path(spec).exists():
         mesh, _ = load_mesh(spec)
         return mesh, spec
-    from templates.garments import make_garment
 
     return make_garment(spec, shape=shape), None
 
 
 def _motion(args, shape):
-    from core.errors import InputError
 
     spec = args.motion
     if spec is None:
@@ -101,15 +122,10 @@ def _motion(args, shape):
     from core.motion.load import MOTION_FILE_SUFFIXES, load_motion
 
     if Path(spec).suffix.lower() in MOTION_FILE_SUFFIXES or Path(spec).exists():
-        from core.body.shape import MANNEQUIN_JOINTS
-        from core.motion.mapping import canonical_positions
-        from core.motion.retarget import retarget
-
         source = load_motion(spec, fps=args.fps)
         if tuple(source.skeleton.names) == MANNEQUIN_JOINTS:
             return source
         return retarget(canonical_positions(source), source.fps, shape, name=source.name)
-    from core.motion.procedural import make_motion
 
     return make_motion(spec, args.frames, args.fps or 30.0, args.seed, shape)
 
@@ -119,11 +135,6 @@ def _report_path(out: Path, what: str) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    from core.body.shape import BodyShape
-    from core.errors import InputError
-    from core.mesh import weld_mesh
-    from core.sim.cache import export_cache, import_cache, save_cache, unweld_cache
-    from core.sim.config import SimConfig
 
     out = Path(args.out)
     if out.suffix.lower() != ".npz":
@@ -151,8 +162,6 @@ def run(args: argparse.Namespace) -> int:
     if args.embed_in:
         return _embed(args, garment, out)
 
-    from core.sim.config import QUALITY
-
     if args.quality not in QUALITY:
         raise InputError(f"unknown --quality {args.quality!r}; choose one of {', '.join(QUALITY)}")
     substeps, iterations = QUALITY[args.quality]
@@ -176,8 +185,6 @@ def run(args: argparse.Namespace) -> int:
         if not args.json and (done == total or done % 10 == 0):
             print(f"\rframe {done}/{total}", end="" if done < total else "\n", file=sys.stderr)
 
-    import contextlib
-
     # Keep stdout for the JSON report: warp/newton print kernel-build notes.
     # A file's UV seams are split vertices: weld them so the cloth is one piece, and map the
     # result back so the cache has the file's vertices in the file's order.
@@ -198,8 +205,6 @@ def run(args: argparse.Namespace) -> int:
     if args.body_check:
         data["body_mesh_penetration"] = _body_check(cache, motion, shape)
     if args.preview is not None:
-        from core.sim.preview import preview_sheet
-
         png = Path(args.preview) if args.preview else _report_path(out, ".preview.png")
         title = f"{args.garment} / {motion.name} / {config.fabric}"
         data["preview"] = str(png)
@@ -220,8 +225,6 @@ def run(args: argparse.Namespace) -> int:
 def _write_report(args: argparse.Namespace, out: Path, data: dict, summary: str) -> int:
     """Write ``data`` beside the cache ``out`` (``.report.json``), then print it as JSON
     (``--json``) or the one-line ``summary``; the command's exit code."""
-    from core.fileio import write_json
-
     write_json(_report_path(out, ".report.json"), data)
     print(json.dumps(data, indent=2) if args.json else summary)
     return 0
@@ -229,11 +232,7 @@ def _write_report(args: argparse.Namespace, out: Path, data: dict, summary: str)
 
 def _embed(args: argparse.Namespace, garment, out: Path) -> int:
     """The garment embedded in a simulated proxy: its cache, and its strain as a report."""
-    import numpy as np
 
-    from core.errors import InputError
-    from core.mesh import load_mesh, weld_mesh
-    from core.sim.cache import SimCache, load_cache, save_cache
     from core.sim.embed import drive, embed, strain_stats
 
     proxy_file, cache_file = args.embed_in
@@ -272,10 +271,7 @@ def _embed(args: argparse.Namespace, garment, out: Path) -> int:
 
 def _body_check(cache, motion, shape) -> dict:
     """Penetration of the free garment vertices into the skinned mannequin mesh, in mm."""
-    import numpy as np
 
-    from core.body.mannequin import make_body
-    from core.body.skinning import pose_body
     from core.sim.simulate import mesh_penetration_depths
 
     body = make_body(shape)

@@ -3,6 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import json
+from dataclasses import replace
+
+from core.errors import InputError
+from core.project import Project
+from pipeline.config import baseline_config, joint2coarse_config, project_config, renderer_config
+from pipeline.stages.baselines import stage_baselines
+from pipeline.stages.joint2coarse import stage_joint2coarse
+from pipeline.stages.renderer import stage_renderer
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -95,10 +104,6 @@ def _add_set(parser: argparse.ArgumentParser, what: str, example: str) -> None:
 
 def _print_config(args: argparse.Namespace, config, network: str) -> bool:
     """With ``--print-config``: print the resolved configuration(s) as JSON; True if printed."""
-    import json
-
-    from pipeline.config import baseline_config, joint2coarse_config, renderer_config
-
     if not args.print_config:
         return False
     if network == "renderer":
@@ -112,9 +117,6 @@ def _print_config(args: argparse.Namespace, config, network: str) -> bool:
 
 
 def run_joint2coarse(args: argparse.Namespace) -> int:
-    import json
-
-    from pipeline.stages.joint2coarse import stage_joint2coarse
 
     project, config = _config_with(args, "joint2coarse")
     if _print_config(args, config, "joint2coarse"):
@@ -131,11 +133,6 @@ def _config_with(args: argparse.Namespace, network: str = "renderer"):
     ``network`` (``renderer``, ``joint2coarse`` or ``baseline``) is what ``--preset`` and
     ``--set`` change.
     """
-    from dataclasses import replace
-
-    from core.project import Project
-    from pipeline.config import project_config
-
     project = Project(args.project)
     config = project_config(project)
     changes = {}
@@ -155,7 +152,6 @@ def _config_with(args: argparse.Namespace, network: str = "renderer"):
             **dict(parse_setting(item) for item in args.overrides),
         }
     config = replace(config, **changes)
-    from pipeline.config import baseline_config, joint2coarse_config, renderer_config
 
     # an unknown preset, kind or setting fails here, before the settings change
     joint2coarse_config(config)
@@ -177,10 +173,6 @@ def parse_setting(item: str) -> tuple[str, object]:
     >>> parse_setting("w_gan=0.1")
     ('w_gan', 0.1)
     """
-    import json
-
-    from core.errors import InputError
-
     key, sep, text = item.partition("=")
     key = key.strip()
     if not sep or not key:
@@ -193,10 +185,6 @@ def parse_setting(item: str) -> tuple[str, object]:
 
 def _with_workers(args: argparse.Namespace, project, config):
     """``--workers`` for this run only (a property of the machine, not kept in the project)."""
-    from dataclasses import replace
-
-    from core.errors import InputError
-
     if args.workers is None:
         return project, config
     if args.workers < 0:
@@ -205,9 +193,6 @@ def _with_workers(args: argparse.Namespace, project, config):
 
 
 def run_renderer(args: argparse.Namespace) -> int:
-    import json
-
-    from pipeline.stages.renderer import stage_renderer
 
     project, config = _with_workers(args, *_config_with(args))
     if _print_config(args, config, "renderer"):
@@ -220,9 +205,6 @@ def run_renderer(args: argparse.Namespace) -> int:
 
 
 def run_baselines(args: argparse.Namespace) -> int:
-    import json
-
-    from pipeline.stages.baselines import stage_baselines
 
     project, config = _with_workers(args, *_config_with(args, "baseline"))
     if _print_config(args, config, "baseline"):

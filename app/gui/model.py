@@ -26,9 +26,25 @@ from pathlib import Path
 
 import numpy as np
 
+from core.body.shape import BodyShape
+from core.camera import Camera, CameraKey, make_camera, orbit_eye
 from core.errors import InputError
-from core.mesh import unique_edges  # noqa: F401  (re-exported for the GUI controller)
+from core.fileio import atomic_path
+from core.mesh import (
+    Mesh,
+    unique_edges,  # noqa: F401  (re-exported for the GUI controller)
+)
 from core.progress import StageEta as Eta  # noqa: F401  (the GUI's name for it)
+from core.project import Project
+from core.proxy.atlas import uv_atlas, uv_stats
+from pipeline.config import available_test_motions
+from pipeline.stages.dataset import stage_dataset
+from pipeline.stages.garment import stage_garment
+from pipeline.stages.joint2coarse import stage_joint2coarse
+from pipeline.stages.motions import stage_motions
+from pipeline.stages.proxy import stage_proxy
+from pipeline.stages.renderer import stage_renderer
+from pipeline.stages.simulate import stage_simulate
 from training.csvlog import read_loss_log
 
 #: Key of the window's settings inside ``project.json``.
@@ -100,8 +116,6 @@ class CameraPose:
 
     def camera(self, width: int, height: int):
         """The OpenCV pinhole :class:`core.camera.Camera` of this pose at ``width x height``."""
-        from core.camera import make_camera
-
         return make_camera(
             self.eye, self.target, fov_y_deg=self.fov_deg, width=width, height=height, up=self.up
         )
@@ -157,8 +171,6 @@ def camera_from_gl(view: np.ndarray, projection: np.ndarray, width: int, height:
         are float32); ``fy = P[1, 1] * height / 2``, ``fx = fy``; the principal point keeps the
         projection's off-centre terms (zero for Open3D's symmetric frusta).
     """
-    from core.camera import Camera
-
     view = np.asarray(view, np.float64)
     p = np.asarray(projection, np.float64)
     if view.shape != (4, 4) or p.shape != (4, 4):
@@ -196,8 +208,6 @@ def orbit_poses(
     n: int, target: Sequence[float], radius: float, elevation_deg: float = 10.0, fov: float = 40.0
 ) -> list[CameraPose]:
     """``n`` poses once around ``target`` (azimuth 0 on +Z, the front)."""
-    from core.camera import orbit_eye
-
     t = np.asarray(target, np.float64)
     out = []
     for i in range(n):
@@ -247,9 +257,6 @@ def cached_builtin_garment(name: str, resolution_mm: float, shape, make: Callabl
 
     Returns ``(mesh, from_cache)``.
     """
-    from core.fileio import atomic_path
-    from core.mesh import Mesh
-
     path = garment_cache_dir() / garment_cache_key(name, resolution_mm, shape)
     if path.is_file():
         try:
@@ -363,8 +370,6 @@ class GuiSettings:
     def path_keys(self) -> list:
         """The camera path's :class:`core.camera.CameraKey` s by frame (malformed keys and
         keys repeating a frame are dropped; a key saved without a frame sits at its index)."""
-        from core.camera import CameraKey
-
         out = {}
         for i, d in enumerate(self.camera_path):
             try:
@@ -377,23 +382,17 @@ class GuiSettings:
 
     def body_shape(self):
         """The :class:`core.body.shape.BodyShape` of ``body`` (InputError if out of range)."""
-        from core.body.shape import BodyShape
-
         names = {f.name for f in fields(BodyShape)}
         return BodyShape(**{k: float(v) for k, v in self.body.items() if k in names})
 
 
 def load_settings(project_root: str | Path) -> GuiSettings:
     """The window's settings saved in a project folder (defaults when there are none)."""
-    from core.project import Project
-
     return GuiSettings.from_dict(Project(project_root).settings().get(SETTINGS_KEY))
 
 
 def save_settings(project_root: str | Path, settings: GuiSettings) -> None:
     """Write ``settings`` under ``"gui"`` in ``project.json``, keeping every other key."""
-    from core.project import Project
-
     project = Project(project_root)
     data = project.settings()
     data[SETTINGS_KEY] = settings.as_dict()
@@ -419,9 +418,6 @@ def proxy_plan(old, new) -> str:
 def reatlas(result, texture_size: int, padding: int | None = None):
     """``result`` (a :class:`core.proxy.ProxyResult`) with a new UV atlas for another texture
     size; positions, correspondence and distances are unchanged (the surface is the same)."""
-    from core.mesh import Mesh
-    from core.proxy.atlas import uv_atlas, uv_stats
-
     pad = result.report["config"]["padding"] if padding is None else padding
     start = time.perf_counter()
     pos = result.positions
@@ -614,14 +610,6 @@ def pipeline_jobs(config, which: str) -> list[StageJob]:
     ``stage_renderer``) or ``"all"`` (motions, garment, proxy and everything above).
     """
     # deferred: the stages load torch and open3d; the window opens before they are needed
-    from pipeline.config import available_test_motions
-    from pipeline.stages.dataset import stage_dataset
-    from pipeline.stages.garment import stage_garment
-    from pipeline.stages.joint2coarse import stage_joint2coarse
-    from pipeline.stages.motions import stage_motions
-    from pipeline.stages.proxy import stage_proxy
-    from pipeline.stages.renderer import stage_renderer
-    from pipeline.stages.simulate import stage_simulate
 
     tests = [m.name for m in available_test_motions(config)]
     train = config.train_motion.name

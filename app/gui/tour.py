@@ -13,12 +13,19 @@ the path as JSON, OBJ export, settings saved and read back.
 
 from __future__ import annotations
 
+import faulthandler
 import json
+import os
+import signal
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
+
+from app.gui import start_application
+from app.gui.model import CameraPose, camera_from_gl, load_settings
 
 #: Seconds of continuous play in the tour.
 PLAY_SECONDS = 4.0
@@ -41,12 +48,6 @@ def _mean_diff(a: np.ndarray, b: np.ndarray) -> float:
 
 def run_tour(project: str, out_dir: str, width: int = 1500, height: int = 940) -> int:
     """Run :func:`tour` and exit the GUI whatever happens (the report says what failed)."""
-    import faulthandler
-    import os
-    import signal
-    import sys
-    import traceback
-
     if hasattr(signal, "SIGUSR1"):
         # A tour that hangs (the GUI tests kill it past their limit) prints the Python stack of
         # every thread on stderr first.
@@ -69,9 +70,7 @@ def run_tour(project: str, out_dir: str, width: int = 1500, height: int = 940) -
 
 
 def tour(project: str, out: Path, report: dict, width: int, height: int) -> None:
-    from app.gui import start_application
     from app.gui.controller import Studio
-    from app.gui.model import CameraPose, camera_from_gl, load_settings
 
     start = time.perf_counter()
 

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from core.proxy.config import VERTEX_COUNT_TOLERANCE
+from core.proxy.metrics import point_to_mesh
 from core.proxy.topology import compact, edge_counts, face_areas
 
 #: Implicit steps the smoothing flow is split into (one factorisation, reused).
@@ -266,8 +267,6 @@ def relax(
     (V, 3) float64
     """
     from scipy.sparse import coo_matrix
-
-    from core.proxy.metrics import point_to_mesh
 
     v = np.asarray(vertices, np.float64).copy()
     f = np.asarray(faces, np.int64)

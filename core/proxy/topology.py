@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections import defaultdict
+
 import numpy as np
 
 from core.proxy.config import ENCLOSE_BINS, ENCLOSE_COVERAGE, SLIVER_ANGLE_DEG
@@ -83,7 +85,6 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     b = edges[counts == 1]
     if len(b) == 0:
         return []
-    from collections import defaultdict
 
     nbrs: dict[int, list[int]] = defaultdict(list)
     for a, c in b:

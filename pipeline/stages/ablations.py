@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 
 from core.errors import InputError
@@ -38,8 +39,6 @@ def ablation_project(project: Project, name: str) -> Project:
 
 def _link(sub: Project, project: Project, names: list[str]) -> None:
     """Share the parent's finished stage folders with a sub-project (symbolic links)."""
-    import os
-
     sub.root.mkdir(parents=True, exist_ok=True)
     for name in names:
         link = sub.root / name

@@ -3,6 +3,7 @@ same data set as ours (``baselines/KIND/``)."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -10,6 +11,7 @@ from core.fileio import write_json
 from core.project import Project
 from pipeline.config import Log, PipelineConfig, baseline_config, quiet
 from pipeline.stages.renderer import plot_losses, proxy_source_file, read_loss_log
+from training.dataset import GarmentDataset
 
 
 def stage_baseline(
@@ -20,7 +22,6 @@ def stage_baseline(
     import torch
 
     from training.baselines import train_baseline
-    from training.dataset import GarmentDataset
 
     cfg = baseline_config(config, kind)
     source_file = proxy_source_file(project, config.renderer_source, config.train_motion.name)
@@ -53,7 +54,6 @@ def stage_baseline(
 
     inputs = [project.path("dataset", "samples.json"), source_file]
     project.run_stage(stage, params, inputs, work, resumable=[f"{kind}_train.pt"])
-    import json
 
     return json.loads(project.path(stage, "report.json").read_text())
 

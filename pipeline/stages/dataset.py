@@ -8,8 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
+from core.body.mannequin import make_body
+from core.body.skinning import pose_body
+from core.camera import CameraRigConfig, camera_to_dict, random_cameras
 from core.fileio import write_json
+from core.mesh import Mesh, load_mesh
 from core.project import Project
+from core.shading import render_views, write_png
+from core.sim import load_cache
 from pipeline.config import Log, PipelineConfig, quiet
 from pipeline.stages.motions import load_project_motion
 from training.dataset import sample_name
@@ -19,8 +25,6 @@ from training.dataset import sample_name
 
 def dataset_rig(config: PipelineConfig, garment_vertices: np.ndarray):
     """Cameras on a circle that frame the garment (it fills most of the image)."""
-    from core.camera import CameraRigConfig
-
     lo, hi = garment_vertices.min(axis=0), garment_vertices.max(axis=0)
     centre = (lo + hi) / 2
     half = 0.5 * float(np.linalg.norm(hi - lo)) * 1.15  # room for the swing
@@ -93,13 +97,6 @@ def _render_samples(
     sample records written to ``samples.json``.
     """
     from tqdm import tqdm
-
-    from core.body.mannequin import make_body
-    from core.body.skinning import pose_body
-    from core.camera import camera_to_dict, random_cameras
-    from core.mesh import Mesh, load_mesh
-    from core.shading import render_views, write_png
-    from core.sim import load_cache
 
     cache = load_cache(project.path(f"sim/{motion_name}-target", "cache.npz"))
     motion = load_project_motion(project, motion_name)

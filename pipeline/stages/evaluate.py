@@ -5,12 +5,15 @@ Joint2Coarse's proxy in both, and the simulated proxy beside it (the renderers a
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from core.fileio import write_json
 from core.project import Project
+from core.shading import contact_sheet, write_png
 from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
 from pipeline.stages.ablations import ablation_label, ablation_project, check_ablation
+from training.dataset import GarmentDataset
 
 
 def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Path, str, Path]]:
@@ -63,9 +66,7 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
     same frames)."""
     import torch
 
-    from core.shading import contact_sheet, write_png
     from training.baselines import load_for_evaluation
-    from training.dataset import GarmentDataset
     from training.evaluate import EvalConfig, evaluate_motion, fid_scores
     from training.metrics import FrameMetrics
 
@@ -148,6 +149,5 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
         return [*outputs, "report.json"]
 
     project.run_stage("eval", params, inputs, work)
-    import json
 
     return json.loads(project.path("eval", "report.json").read_text())

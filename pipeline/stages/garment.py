@@ -5,14 +5,14 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
+from core.mesh import load_mesh, save_mesh
 from core.project import Project
 from pipeline.config import Log, PipelineConfig, quiet
+from templates.garments import make_garment
 
 
 def stage_garment(project: Project, config: PipelineConfig, log: Log = quiet) -> Path:
     """The detailed target garment: ``garment/target.obj``."""
-    from core.mesh import load_mesh, save_mesh
-
     builtin = not Path(config.garment).suffix
     params = {
         "garment": config.garment,
@@ -22,8 +22,6 @@ def stage_garment(project: Project, config: PipelineConfig, log: Log = quiet) ->
 
     def work(out: Path) -> list[str]:
         if builtin:
-            from templates.garments import make_garment
-
             mesh = make_garment(
                 config.garment, config.garment_resolution_mm, config.body, config.seed
             )

@@ -3,15 +3,22 @@ the test split, and predict the proxy of every motion (``joint2coarse/``)."""
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
+from core.body.mannequin import make_body
+from core.body.skinning import pose_body
+from core.camera import make_camera
 from core.errors import InputError
 from core.fileio import write_json, write_npz
+from core.mesh import Mesh, load_mesh
 from core.project import Project
+from core.shading import contact_sheet, render_views, write_png
+from core.sim import load_cache
 from pipeline.config import (
     Log,
     PipelineConfig,
@@ -37,8 +44,6 @@ def stage_joint2coarse(
     """
     import torch
 
-    from core.mesh import load_mesh
-    from core.sim import load_cache
     from training.joint2coarse import (
         Joint2CoarseClip,
         joint2coarse_inputs,
@@ -133,14 +138,12 @@ def stage_joint2coarse(
     resumable = ["joint2coarse_train.pt"]
     resumable += [f"compare-{m}/joint2coarse_train.pt" for m in config.joint2coarse_compare]
     project.run_stage("joint2coarse", params, inputs, work, resumable=resumable)
-    import json
 
     return json.loads(project.path("joint2coarse", "report.json").read_text())
 
 
 def _compare_errors(project: Project, net, caches: dict, vals: list, tests: list) -> dict:
     """A comparison model's vertex errors (mm) on the validation and test motions."""
-    from core.sim import load_cache
     from training.joint2coarse import joint2coarse_inputs, predict_proxy, vertex_errors
 
     out: dict[str, dict] = {"validation_motions": {}, "motions": {}}
@@ -159,8 +162,6 @@ def _evaluate_joint2coarse(
     """Predict a test motion; compare with its simulation, with and without the push-out
     against the body (the capsules the simulation collides with); time the inference; write a
     side-by-side picture. Penetration is reported for the prediction and the simulation alike."""
-    from core.body.mannequin import make_body
-    from core.mesh import load_mesh
     from training.joint2coarse import (
         Joint2CoarseStream,
         joint2coarse_inputs,
@@ -223,11 +224,6 @@ def _evaluate_joint2coarse(
 
 def _side_by_side(path: Path, reference, predicted: np.ndarray, body, motion) -> None:
     """Simulated proxy above, Joint2Coarse's prediction below, at five frames of the clip."""
-    from core.body.skinning import pose_body
-    from core.camera import make_camera
-    from core.mesh import Mesh
-    from core.shading import contact_sheet, render_views, write_png
-
     frames = np.linspace(0, len(predicted) - 1, 5).round().astype(int)
     posed = pose_body(body, motion)
     tiles, labels = [], []

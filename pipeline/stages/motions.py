@@ -6,6 +6,10 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from core.errors import InputError
+from core.motion.bvh import write_bvh
+from core.motion.mapping import canonical_positions
+from core.motion.procedural import make_motion
+from core.motion.retarget import retarget
 from core.project import Project
 from pipeline.config import (
     Log,
@@ -20,8 +24,6 @@ from pipeline.config import (
 
 def stage_motions(project: Project, config: PipelineConfig, log: Log = quiet) -> list[str]:
     """Write every motion of the project as a BVH on the mannequin: ``motions/NAME.bvh``."""
-    from core.motion.bvh import write_bvh
-
     specs = (
         config.train_motion,
         *available_extra_motions(config),
@@ -46,9 +48,6 @@ def stage_motions(project: Project, config: PipelineConfig, log: Log = quiet) ->
 
 def motion_from_spec(spec: MotionSpec, config: PipelineConfig):
     from core.motion.load import load_motion, resample
-    from core.motion.mapping import canonical_positions
-    from core.motion.procedural import make_motion
-    from core.motion.retarget import retarget
     from core.motion.variation import source_frames, vary_motion
 
     frames = source_frames(spec.frames, spec.speed)  # before playing it faster or slower

@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict
 from pathlib import Path
 
 from core.fileio import write_json, write_npz
+from core.mesh import load_mesh, save_mesh
 from core.project import Project
+from core.proxy import ProxyConfig, derive_proxy
 from pipeline.config import Log, PipelineConfig, quiet
+from templates.garments import make_garment
 
 
 def stage_proxy(project: Project, config: PipelineConfig, log: Log = quiet) -> dict:
     """The coarse proxy of the target: UV'd ``proxy.obj``, seam-free ``positions.obj``."""
-    from core.mesh import load_mesh, save_mesh
-    from core.proxy import ProxyConfig, derive_proxy
-
     target = project.path("garment", "target.obj")
     cfg = ProxyConfig(target_verts=config.proxy_verts, texture_size=config.proxy_texture)
     params: dict = {"proxy": asdict(cfg)}
@@ -25,8 +26,6 @@ def stage_proxy(project: Project, config: PipelineConfig, log: Log = quiet) -> d
         mesh, _ = load_mesh(target)
         template = None
         if config.proxy_template:
-            from templates.garments import make_garment
-
             template = make_garment(config.proxy_template, shape=config.body)
         result = derive_proxy(mesh, cfg, path=target, template=template)
         save_mesh(out / "proxy.obj", result.proxy)
@@ -40,6 +39,5 @@ def stage_proxy(project: Project, config: PipelineConfig, log: Log = quiet) -> d
         return ["proxy.obj", "positions.obj", "seams.npz", "report.json"]
 
     project.run_stage("proxy", params, [target], work)
-    import json
 
     return json.loads(project.path("proxy", "report.json").read_text())

@@ -3,16 +3,18 @@ plots of every trained network."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from core.errors import InputError
-from core.fileio import write_json
+from core.fileio import atomic_path, write_json
 from core.project import Project
 from pipeline.config import Log, PipelineConfig, quiet, renderer_config
 from training.csvlog import read_loss_log
+from training.dataset import GarmentDataset
 
 
 def proxy_source_file(project: Project, source: str, motion_name: str) -> Path:
@@ -42,7 +44,6 @@ def stage_renderer(
     """
     import torch
 
-    from training.dataset import GarmentDataset
     from training.renderer.train import train_renderer
 
     cfg = renderer_config(config).replace(**(overrides or {}))
@@ -88,7 +89,6 @@ def stage_renderer(
         work,
         resumable=["renderer_train.pt"],
     )
-    import json
 
     return json.loads(project.path(stage, "report.json").read_text())
 
@@ -99,8 +99,6 @@ def plot_losses(rows: list[dict], path: Path, title: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from core.fileio import atomic_path
 
     skip = {"step", "epoch", "skipped", "seconds"}
     fig, ax = plt.subplots(figsize=(6, 3.5), dpi=100)

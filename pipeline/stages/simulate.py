@@ -10,9 +10,18 @@ from pathlib import Path
 
 import numpy as np
 
+from core.body.colliders import body_capsules, penetration_depths, pose_capsules
+from core.body.mannequin import make_body
+from core.body.shape import mannequin_skeleton
+from core.body.skinning import pose_body
+from core.camera import make_camera
 from core.errors import InputError
 from core.fileio import write_json
+from core.mesh import Mesh, load_mesh
 from core.project import Project
+from core.shading import contact_sheet, render_views, write_png
+from core.sim import SimCache, load_cache, save_cache
+from core.skeleton import forward_kinematics, skinning_transforms
 from pipeline.config import Log, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import load_project_motion
 
@@ -31,8 +40,6 @@ def stage_simulate(
     ``config.target_mode`` says. Writes ``sim/MOTION-WHICH/cache.npz`` and ``report.json``;
     returns the cache's path.
     """
-    from core.mesh import load_mesh
-    from core.sim import save_cache
     from core.sim.simulate import simulate
 
     if which not in ("proxy", "target"):
@@ -73,12 +80,7 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
     simulation: edge stretch and compression against the rest garment, tears, penetration into
     the body colliders; ``sheet.png`` shows the proxy and the target on the body."""
-    from core.body.colliders import body_capsules, penetration_depths, pose_capsules
-    from core.body.shape import mannequin_skeleton
-    from core.mesh import load_mesh
-    from core.sim import SimCache, load_cache, save_cache
     from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, drive, embed, strain_stats
-    from core.skeleton import forward_kinematics, skinning_transforms
 
     target_file = project.path("garment", "target.obj")
     proxy_file = project.path("proxy", "positions.obj")
@@ -143,12 +145,6 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
 def _garment_sheet(path: Path, rows, shape, motion, frames: int = 5) -> None:
     """A contact sheet: one row per garment ``rows`` [(label, positions (T, V, 3), faces
     (F, 3))] on the posed mannequin, at ``frames`` frames spread over the clip (front view)."""
-    from core.body.mannequin import make_body
-    from core.body.skinning import pose_body
-    from core.camera import make_camera
-    from core.mesh import Mesh
-    from core.shading import contact_sheet, render_views, write_png
-
     body = make_body(shape)
     picked = np.linspace(0, len(rows[0][1]) - 1, frames).round().astype(int)
     posed = pose_body(body, motion)

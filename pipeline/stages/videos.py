@@ -3,13 +3,16 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
 from core.fileio import write_json
 from core.project import Project
+from core.shading import contact_sheet
 from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
+from pipeline.playback import FrameWriter, Playback, load_motion_for
 
 
 def stage_videos(project: Project, config: PipelineConfig, log: Log = quiet) -> dict:
@@ -17,9 +20,6 @@ def stage_videos(project: Project, config: PipelineConfig, log: Log = quiet) -> 
     Joint2Coarse's proxy, from a camera circling the body once over the clip (unseen views).
     Writes ``videos/MOTION.gif`` and ``report.json`` (ms per frame of the neural path)."""
     import torch
-
-    from core.shading import contact_sheet
-    from pipeline.playback import FrameWriter, Playback, load_motion_for
 
     tests = [m.name for m in available_test_motions(config)]
     inputs = [
@@ -55,6 +55,5 @@ def stage_videos(project: Project, config: PipelineConfig, log: Log = quiet) -> 
         return [*(f"{n}.gif" for n in tests), "report.json"]
 
     project.run_stage("videos", params, inputs, work)
-    import json
 
     return json.loads(project.path("videos", "report.json").read_text())

@@ -18,8 +18,10 @@ Benchmark: ``python -m training.baselines --bench [KIND ...]`` times training st
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -450,8 +452,6 @@ def bench(kind: str, steps: int = 10, warmup: int = 3) -> tuple[float, float]:
         def __getitem__(self, i):
             return self.items[i]
 
-    import tempfile
-
     with tempfile.TemporaryDirectory() as d:
         tr = _Trainer(kind, _Data(), cfg, Path(d), steps, torch.device("cpu"))
         feed = tr.feed(warmup + steps)
@@ -467,7 +467,6 @@ def bench(kind: str, steps: int = 10, warmup: int = 3) -> tuple[float, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import argparse
 
     p = argparse.ArgumentParser(description="Time the baselines' cpu presets (one thread).")
     p.add_argument("--bench", nargs="*", default=list(KINDS), metavar="KIND")

@@ -37,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from core.body.mannequin import make_body
 from core.body.shape import BodyShape
 from core.errors import InputError
 from training.joint2coarse.config import Joint2CoarseConfig
@@ -86,8 +87,6 @@ def body_rig(shape: BodyShape, rest_proxy: np.ndarray, fade: float) -> tuple[np.
     rest_vertices : (V, 3) float32, the rest proxy relative to the rest root
     """
     from scipy.spatial import cKDTree
-
-    from core.body.mannequin import make_body
 
     v = np.asarray(rest_proxy, np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0 or not np.isfinite(v).all():

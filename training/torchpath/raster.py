@@ -29,6 +29,7 @@ import torch
 
 from core.camera import Camera
 from core.errors import InputError
+from core.raster import Fragments
 
 #: Pairs tested per block (bounds memory at about 100 bytes per pair).
 PAIR_BLOCK = 1 << 21
@@ -124,8 +125,6 @@ class TorchFragments:
 
     def numpy(self):
         """The :class:`core.raster.Fragments` of this (unbatched) result, copied to the host."""
-        from core.raster import Fragments
-
         return Fragments(
             self.face_id.cpu().numpy(),
             self.barycentrics.float().cpu().numpy(),
