@@ -28,6 +28,7 @@ from app.gui.model import (
     side_by_side,
     view_image_size,
 )
+from app.gui.part import Part
 from app.gui.window import COLOURS
 from core.camera import dolly_view, orbit_view, pan_view
 from core.errors import InputError
@@ -54,7 +55,7 @@ ADAPT_EVERY_S = 1.0
 ORBIT_RAD_PER_PX = 0.01
 
 
-class Player:
+class Player(Part):
     """The main area and the timeline: view mode, visibility, play clock, camera, live render.
 
     ``studio`` is the :class:`app.gui.controller.Studio` it belongs to (settings, view,
@@ -63,7 +64,7 @@ class Player:
     """
 
     def __init__(self, studio):
-        self.studio = studio
+        super().__init__(studio)
         self.mode = "garment"  # "garment" (Garment tab's scene) or "play" (a motion)
         # the project's trained networks (pipeline.playback.Playback): playback worker only
         self.playback = None
@@ -104,17 +105,6 @@ class Player:
         self._frame_ms: float | None = None  # smoothed ms per neural render
         self._last_adapt = 0.0
         self._scene_stale = False  # the 3D view's meshes lag the frame (hidden meanwhile)
-
-    @property
-    def settings(self):
-        return self.studio.settings
-
-    @property
-    def view(self):
-        return self.studio.view
-
-    def _set(self, **changes) -> None:
-        self.studio.settings = replace(self.studio.settings, **changes)
 
     def apply_settings(self) -> None:
         """Put the settings into the timeline's and the live panel's widgets."""
@@ -195,10 +185,10 @@ class Player:
     def set_play_speed(self, speed: float) -> None:
         if self.playing:
             self._play_start = (time.perf_counter(), self.frame)
-        self._set(play_speed=float(speed))
+        self.set(play_speed=float(speed))
 
     def set_loop(self, on: bool) -> None:
-        self._set(loop=bool(on))
+        self.set(loop=bool(on))
 
     # ------------------------------------------------------------------ what is shown
 
@@ -214,7 +204,7 @@ class Player:
         beside the reference (``compare``) in the main area."""
         if mode not in ("neural", "scene", "compare"):
             raise InputError(f"unknown view mode {mode!r}")
-        self._set(view_mode=mode)
+        self.set(view_mode=mode)
         self.update_main_view()
         self.render_now(force_reference=True)
 
@@ -228,7 +218,7 @@ class Player:
     def set_visibility(self, **flags) -> None:
         """Show or hide parts of the 3D view (``show_target``, ``show_wireframe``,
         ``show_proxy``, ``show_body``, ``show_sim``); the Garment and Motion tabs' boxes."""
-        self._set(**flags)
+        self.set(**flags)
         v = self.view
         for key, box in (
             ("show_target", v.show_target),
@@ -375,16 +365,16 @@ class Player:
     # ------------------------------------------------------------------ the live render
 
     def set_live_render(self, on: bool) -> None:
-        self._set(live_render=bool(on))
+        self.set(live_render=bool(on))
         self.update_main_view()
         self.render_now()
 
     def set_show_ground_truth(self, on: bool) -> None:
-        self._set(show_ground_truth=bool(on))
+        self.set(show_ground_truth=bool(on))
         self.render_now(force_reference=True)
 
     def set_render_size(self, size: int) -> None:
-        self._set(render_size=int(size))
+        self.set(render_size=int(size))
         self.render_now(force_reference=True)
 
     def render_now(self, force_reference: bool = False) -> None:

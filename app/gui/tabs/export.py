@@ -5,10 +5,10 @@ OBJ."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from app.gui.model import Cancelled, Eta, format_seconds, side_by_side
+from app.gui.part import Part
 from app.gui.workers import CancelToken
 from core.camera import camera_path_to_dict, path_cameras
 from core.errors import InputError
@@ -17,20 +17,13 @@ from core.mesh import save_mesh
 from pipeline.playback import FrameWriter
 
 
-class ExportTab:
+class ExportTab(Part):
     """Camera path and exports; ``studio`` is the :class:`app.gui.controller.Studio` it
     belongs to (the frame and camera come from its player)."""
 
     def __init__(self, studio):
-        self.studio = studio
+        super().__init__(studio)
         self.export_token: CancelToken | None = None
-
-    @property
-    def view(self):
-        return self.studio.view
-
-    def _set(self, **changes) -> None:
-        self.studio.settings = replace(self.studio.settings, **changes)
 
     def apply_settings(self) -> None:
         """Put the settings into the tab's widgets."""
@@ -46,11 +39,11 @@ class ExportTab:
         player = self.studio.player
         key = {**player.current_pose().as_dict(), "frame": int(player.frame)}
         keys = [k for k in self.studio.settings.camera_path if k.get("frame") != key["frame"]]
-        self._set(camera_path=sorted([*keys, key], key=lambda k: k.get("frame", 0)))
+        self.set(camera_path=sorted([*keys, key], key=lambda k: k.get("frame", 0)))
         self.update_path_label()
 
     def clear_path(self) -> None:
-        self._set(camera_path=[])
+        self.set(camera_path=[])
         self.update_path_label()
 
     def update_path_label(self) -> None:
@@ -63,10 +56,10 @@ class ExportTab:
         )
 
     def set_export_frames(self, n: int) -> None:
-        self._set(export_frames=int(n))
+        self.set(export_frames=int(n))
 
     def set_export_reference(self, on: bool) -> None:
-        self._set(export_reference=bool(on))
+        self.set(export_reference=bool(on))
 
     def save_camera_path(self, path: str) -> Path:
         """Write the keyed camera path as JSON (what ``dng render --camera PATH.json`` reads)."""

@@ -18,6 +18,7 @@ from app.gui.model import (
     reatlas,
     unique_edges,
 )
+from app.gui.part import Part
 from app.gui.window import COLOURS
 from core.body.mannequin import make_body
 from core.errors import InputError
@@ -31,13 +32,13 @@ from templates.garments import make_garment
 BUILTIN_GARMENTS = ("multilayer-skirt", "double-skirt", "tango-skirt", "pleated-skirt", "dress")
 
 
-class GarmentTab:
+class GarmentTab(Part):
     """Garment loading and proxy derivation; ``studio`` is the
     :class:`app.gui.controller.Studio` it belongs to. Garment state is written on the main
     thread from worker results, but ``_proxy_cache`` (the proxy worker's own)."""
 
     def __init__(self, studio):
-        self.studio = studio
+        super().__init__(studio)
         self.garment = None  # core.mesh.Mesh
         self.garment_name = ""
         self._garment_id = 0
@@ -48,10 +49,6 @@ class GarmentTab:
         self.garment_from_cache: bool | None = None
         self.garment_shown_s: float | None = None  # when the first garment showed
         self.loading: tuple[str, float] | None = None  # (what, since): status shows progress
-
-    @property
-    def view(self):
-        return self.studio.view
 
     @staticmethod
     def builtin_garments() -> list[str]:
@@ -90,7 +87,7 @@ class GarmentTab:
         studio = self.studio
         name = str(name_or_path)
         res = resolution_mm or studio.settings.garment_resolution_mm
-        studio.settings = replace(studio.settings, garment=name, garment_resolution_mm=res)
+        self.set(garment=name, garment_resolution_mm=res)
         body = studio.settings.body_shape()
         builtin = not Path(name).suffix
         what = f"generating {name} (first time; cached after)" if builtin else f"loading {name}"
@@ -155,7 +152,7 @@ class GarmentTab:
             changes["detail_scale"] = float(detail_scale)
         if texture_size is not None:
             changes["texture_size"] = int(texture_size)
-        studio.settings = replace(studio.settings, **changes)
+        self.set(**changes)
         v = self.view
         v.verts_slider.int_value = studio.settings.proxy_verts
         v.detail_slider.double_value = studio.settings.detail_scale

@@ -6,12 +6,12 @@ background image (a job on the Pipeline tab's runner)."""
 from __future__ import annotations
 
 import os
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from app.gui.model import load_settings, unique_edges
+from app.gui.part import Part
 from core.compositing import load_image
 from core.errors import InputError
 from core.mesh import load_mesh
@@ -24,20 +24,16 @@ from pipeline.playback import Playback, load_motion_for
 PROCEDURAL = ("dance", "twirl", "walk", "circle-walk", "idle", "jump")
 
 
-class MotionTab:
+class MotionTab(Part):
     """Project, motion and body choice; ``studio`` is the :class:`app.gui.controller.Studio`
     it belongs to. What is loaded plays in :attr:`app.gui.controller.Studio.player`."""
 
     def __init__(self, studio):
-        self.studio = studio
+        super().__init__(studio)
         self.motion_items: list[str] = []
         self.body_items: list[str] = []
         self.playback_root: Path | None = None
         self.renderer_path: Path | None = None
-
-    @property
-    def view(self):
-        return self.studio.view
 
     def apply_settings(self) -> None:
         """Put the settings into the tab's widgets."""
@@ -71,8 +67,7 @@ class MotionTab:
         target = root / "garment" / "target.obj"
         if target.is_file():
             if not studio.settings.camera and "proxy_verts" in config:
-                studio.settings = replace(
-                    studio.settings,
+                self.set(
                     proxy_verts=int(config["proxy_verts"]),
                     texture_size=int(config.get("proxy_texture", studio.settings.texture_size)),
                 )
@@ -139,7 +134,7 @@ class MotionTab:
     # ------------------------------------------------------------------ motion
 
     def set_motion_frames(self, n: int) -> None:
-        self.studio.settings = replace(self.studio.settings, motion_frames=int(n))
+        self.set(motion_frames=int(n))
 
     def load_motion(self, name_or_path: str, frames: int | None = None, restore=False) -> None:
         """Load a project motion, a procedural kind or a BVH file and predict its proxy."""
@@ -149,7 +144,7 @@ class MotionTab:
             return
         name = str(name_or_path)
         kind_frames = frames or studio.settings.motion_frames
-        studio.settings = replace(studio.settings, motion=name)
+        self.set(motion=name)
         self.view.status.text = f"loading motion {Path(name).name} ..."
 
         def job():
@@ -199,8 +194,7 @@ class MotionTab:
     # ------------------------------------------------------------------ body shapes
 
     def set_body_param(self, name: str, value: float) -> None:
-        s = self.studio.settings
-        self.studio.settings = replace(s, body={**s.body, name: float(value)})
+        self.set(body={**self.settings.body, name: float(value)})
 
     def select_body(self, item: str) -> None:
         """Play on the project's body or a fine-tuned body sub-project's."""

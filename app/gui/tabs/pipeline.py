@@ -19,18 +19,19 @@ from app.gui.model import (
     pipeline_jobs,
     training_logs,
 )
+from app.gui.part import Part
 from app.gui.workers import CancelToken
 from core.errors import InputError
 from core.project import Project
 from pipeline.config import joint2coarse_config, project_config, renderer_config
 
 
-class PipelineTab:
+class PipelineTab(Part):
     """One job at a time; ``studio`` is the :class:`app.gui.controller.Studio` it belongs
     to. The studio's service calls :meth:`update_widgets` while a job runs."""
 
     def __init__(self, studio):
-        self.studio = studio
+        super().__init__(studio)
         self.job_name = ""
         self.job_token: CancelToken | None = None
         self.job_eta: Eta | None = None
@@ -40,10 +41,6 @@ class PipelineTab:
         self.job_config = None
         self.last_job_result = None
         self._last_plot = 0.0
-
-    @property
-    def view(self):
-        return self.studio.view
 
     def run_pipeline(self, which: str) -> None:
         """Run pipeline stages (``simulate``, ``dataset``, ``joint2coarse``, ``renderer``,
