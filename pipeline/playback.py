@@ -444,6 +444,9 @@ class FrameWriter:
             for t in range(pb.num_frames):
                 out.append(pb.render(t, cam))
 
+    Not imageio's writers: imageio-ffmpeg (which imageio itself would wrap) already writes the
+    MP4, and PIL, a dependency for every PNG the studio writes, writes the GIF.
+
     Parameters
     ----------
     path : ``.mp4``, ``.gif``, or a folder (an existing folder, a path ending in ``/``, or a

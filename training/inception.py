@@ -8,6 +8,11 @@ state-dict layout (``Conv2d_1a_3x3.conv.weight``, ``Mixed_5b.branch1x1.bn.runnin
 every call returns a result whose status says ``unavailable: no Inception weights file given``
 and whose value is None: never a made-up number.
 
+Our own definition with torchvision's names rather than ``torchvision.models``: a torchvision
+wheel must match torch's exact version and build (the studio pins a CPU torch; the torch-only GPU
+machine brings its own), while the user's torchvision weight file loads into this one unchanged
+(tested with a file the test writes).
+
 **What the numbers are.**
 
 - FID: the Frechet distance between Gaussians fitted to the 2048-d pool3 features (after the

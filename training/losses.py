@@ -4,6 +4,8 @@ The perceptual loss needs VGG19 weights, which cannot be downloaded here: give t
 torchvision-layout state dict (``torchvision.models.vgg19().state_dict()`` saved with
 ``torch.save``; only the ``features.N.weight`` / ``features.N.bias`` entries are read). Without a
 path, :func:`load_perceptual` returns None and the training log says the loss is off.
+:func:`vgg_features` is our own few lines rather than ``torchvision.models.vgg19`` for the same
+reason as :mod:`training.inception`'s network: no torchvision version to pin against torch's.
 """
 
 from __future__ import annotations
