@@ -10,7 +10,8 @@ once per ``--seeds`` (the config's ``seed``), in a temporary folder: nothing is 
 project. Prints the mean / p95 / max vertex error (mm) against the simulation of every
 validation motion (``joint2coarse_validation``), their mean over the motions and, with several
 seeds, the mean over seeds, and the training time. ``--test`` adds the test motions: report
-them, never choose on them.
+them, never choose on them. ``--no-turn-lags`` measures ours without the turning-rate features
+over longer lags (an ablation inside this process).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from pipeline.config import joint2coarse_config, joint2coarse_splits, project_co
 from pipeline.stages.motions import load_project_motion
 from training.joint2coarse import (
     Joint2CoarseClip,
+    body_model,
     joint2coarse_inputs,
     predict_proxy,
     train_joint2coarse,
@@ -53,7 +55,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=None, help="default: the config's")
     ap.add_argument("--json", action="store_true", help="print only JSON")
     ap.add_argument("--test", action="store_true", help="also the test motions (report only)")
+    ap.add_argument(
+        "--no-turn-lags", action="store_true",
+        help="ablation: ours without the pelvis's turning rate over longer lags (TURN_LAGS)",
+    )  # fmt: skip
     args = ap.parse_args()
+    if args.no_turn_lags:  # an ablation of this process only: nothing is saved
+        body_model.TURN_LAGS = ()
 
     torch.set_num_threads(1)
     project = Project(args.project)
