@@ -44,7 +44,13 @@ from core.fileio import atomic_path, write_json
 from core.project import Project
 from core.shading import ShadingConfig, write_png
 from core.sim import load_cache
-from pipeline.config import Log, project_config, quiet
+from pipeline.config import (
+    Log,
+    available_extra_motions,
+    available_validation_motions,
+    project_config,
+    quiet,
+)
 from pipeline.playback import RENDERER_MODEL
 from pipeline.stages.dataset import stage_dataset
 from pipeline.stages.joint2coarse import stage_joint2coarse
@@ -296,6 +302,10 @@ def finetune_body_shape(
         stage_simulate(sub, sub_config, train, "target", log)
     stage_dataset(sub, sub_config, log)
     if joint2coarse:
+        # Joint2Coarse trains on its whole library and is chosen on its validation clips: their
+        # proxies, on the new body, too
+        for m in (*available_extra_motions(sub_config), *available_validation_motions(sub_config)):
+            stage_simulate(sub, sub_config, m.name, "proxy", log)
         stage_joint2coarse(sub, sub_config, log, progress=progress)
     log(f"renderer fine-tuning from {model}")
     trace = _LossTrace()

@@ -8,7 +8,14 @@ from dataclasses import replace
 
 from core.errors import InputError
 from core.project import Project
-from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
+from pipeline.config import (
+    Log,
+    PipelineConfig,
+    available_extra_motions,
+    available_test_motions,
+    available_validation_motions,
+    quiet,
+)
 from pipeline.stages.dataset import stage_dataset
 from pipeline.stages.joint2coarse import stage_joint2coarse
 from pipeline.stages.proxy import stage_proxy
@@ -78,7 +85,8 @@ def stage_ablation(
     sub_config = replace(config, proxy_template=template)
     sub.save_settings({"ablation": name, "pipeline": sub_config.as_params()})
     stage_proxy(sub, sub_config, log)
-    for m in (config.train_motion, *available_test_motions(config)):
+    library = (*available_extra_motions(config), *available_validation_motions(config))
+    for m in (config.train_motion, *library, *available_test_motions(config)):
         stage_simulate(sub, sub_config, m.name, "proxy", log)
     stage_joint2coarse(sub, sub_config, log, progress)
     return stage_renderer(sub, sub_config, log, progress)
