@@ -20,6 +20,7 @@ from typing import Protocol
 import torch
 
 from core.errors import InputError
+from core.fileio import read_torch_payload
 from training.loader import SampleOrder
 
 
@@ -115,15 +116,10 @@ class AdversarialRun:
 
 
 def read_checkpoint(path: Path, fmt: str, what: str, expected: list[tuple[str, object, str]]):
-    """A checkpoint written by one of the trainers: its payload, after checking its format and
-    that each ``(key, value, what differs)`` of ``expected`` matches; InputError naming the file
-    otherwise (the run then needs a new folder)."""
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise InputError(f"cannot read {what} checkpoint: {exc}", path) from None
-    if not isinstance(payload, dict) or payload.get("format") != fmt:
-        raise InputError(f"not a {what} training checkpoint ({fmt})", path)
+    """A trainer's checkpoint (:func:`core.fileio.read_torch_payload`), after checking that each
+    ``(key, value, what differs)`` of ``expected`` matches; InputError naming the file otherwise
+    (the run then needs a new folder)."""
+    payload = read_torch_payload(path, fmt, f"{what} training checkpoint")
     for key, mine, differs in expected:
         if payload.get(key) != mine:
             raise InputError(

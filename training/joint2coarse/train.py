@@ -46,6 +46,7 @@ from training.joint2coarse.model import (
     save_model,
     stored_config,
 )
+from training.loop import read_checkpoint
 
 #: Format tag of a training checkpoint.
 CHECKPOINT_FORMAT = "joint2coarse-train/1"
@@ -377,20 +378,13 @@ class _Trainer:
 
     def load_checkpoint(self) -> None:
         path = self.checkpoint_path
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            raise InputError(f"cannot read Joint2Coarse checkpoint: {exc}", path) from None
-        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-            raise InputError(f"not a Joint2Coarse checkpoint ({CHECKPOINT_FORMAT})", path)
-        if stored_config(payload, path) != self.config:
+        payload = read_checkpoint(
+            path, CHECKPOINT_FORMAT, "Joint2Coarse",
+            [("fingerprint", self.fingerprint, "different training data")],
+        )  # fmt: skip
+        if stored_config(payload, path) != self.config:  # older files lack newer fields
             raise InputError(
                 "checkpoint was made with a different config: use a new folder or delete it", path
-            )
-        if payload["fingerprint"] != self.fingerprint:
-            raise InputError(
-                "checkpoint was made from different training data: use a new folder or delete it",
-                path,
             )
         self.net.load_state_dict(net_from_payload(payload, path).state_dict())
         self.stage = int(payload["stage"])
