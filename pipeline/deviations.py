@@ -85,11 +85,20 @@ def _losses(cfg, gan_weight: str = "w_gan") -> str:
     return ", ".join(parts)
 
 
+def _meta(build):
+    """A model built on torch's ``meta`` device: shapes only, no memory, no time (the paper
+    preset's four networks would take about 1 GB on the CPU)."""
+    import torch
+
+    with torch.device("meta"):
+        return build()
+
+
 def _latent(cfg) -> tuple[int, int, int]:
     from training.renderer.model import RenderNet
 
     side = cfg.image_size // 2**cfg.n_down
-    return side, side, RenderNet(cfg).spade.conv1.in_channels
+    return side, side, _meta(lambda: RenderNet(cfg)).spade.conv1.in_channels
 
 
 def deviations(config: PipelineConfig) -> list[Deviation]:
@@ -284,19 +293,19 @@ def _losses_of(weights: dict) -> str:
 
 
 def method_budgets(config: PipelineConfig) -> list[MethodBudget]:
-    """What ours and each baseline of ``config`` train with (parameters counted on a fresh
-    model of the project's configuration)."""
+    """What ours and each baseline of ``config`` train with (parameters counted on a model of the
+    project's configuration built on the ``meta`` device)."""
     from training.baselines import build_model
     from training.renderer.model import RenderNet
 
-    def count(model) -> int:
-        return sum(p.numel() for p in model.parameters() if p.requires_grad)
+    def count(build) -> int:
+        return sum(p.numel() for p in _meta(build).parameters() if p.requires_grad)
 
     r = renderer_config(config)
     rows = [
         MethodBudget(
             "ours",
-            count(RenderNet(r)),
+            count(lambda: RenderNet(r)),
             _texture(r.texture_sizes, r.texture_channels),
             r.steps,
             r.batch_size,
@@ -313,7 +322,7 @@ def method_budgets(config: PipelineConfig) -> list[MethodBudget]:
         rows.append(
             MethodBudget(
                 kind,
-                count(build_model(b)),
+                count(lambda b=b: build_model(b)),
                 _texture(sizes, b.texture_channels) if sizes else "-",
                 b.steps,
                 b.batch_size,
