@@ -205,7 +205,7 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
                 "shape network 2048-1024-512-256-128-64",
                 f"widths scaled by vertices / {j.width_reference_vertices} (at least "
                 f"{j.min_width}) for smaller proxies",
-                "a 1000-vertex proxy has fewer inputs than the first layer's width",
+                "smaller proxies get proportionally smaller networks; not measured against full widths",
             )
     add(
         "Joint2Coarse",
@@ -244,8 +244,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the image is the network's output",
             "blended with the real background by a predicted alpha (the body off the garment "
             "is exact; the baselines must learn it)",
-            "full-frame error then measures the garment; the garment-region figures are "
-            "reported beside it",
+            "the body off the garment is exact, not a learned copy (the garment-region "
+            "figures leave it out)",
         )
     add(
         "renderer",
