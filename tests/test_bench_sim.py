@@ -48,3 +48,37 @@ def test_tiny_bench_writes_table_json_and_plot(tmp_path, capsys):
     assert row["within_target"] == (row["mean_mm"] <= 10 and row["p95_mm"] <= 25)
     assert (tmp_path / "b" / "sim.png").stat().st_size > 0
     assert format_table(result["rows"], 96, 3).count("\n") == 4
+
+
+def test_sim_overrides_name_only_settings_the_bench_may_change():
+    from app.bench.sim import sim_overrides
+
+    assert sim_overrides(["damping=0.5", "fabric=silk"]) == {"damping": 0.5, "fabric": "silk"}
+    with pytest.raises(InputError, match="substeps"):
+        sim_overrides(["substeps=4"])  # each measured setting decides its own
+    with pytest.raises(InputError, match="not a simulation setting"):
+        sim_overrides(["stiffness=3"])
+
+
+def test_floor_runs_the_setting_on_a_moved_garment(tmp_path, capsys):
+    from app.bench.sim import perturbed
+    from app.cli import main
+    from core.mesh import save_mesh
+    from tests.sim_helpers import frustum_skirt
+
+    skirt = frustum_skirt(16, 6)
+    moved = perturbed(skirt, 1e-5, 0)
+    shift = np.linalg.norm(moved.vertices - skirt.vertices, axis=1)
+    assert 0 < shift.max() < 1e-4 and np.array_equal(moved.faces, skirt.faces)
+    assert np.array_equal(perturbed(skirt, 1e-5, 0).vertices, moved.vertices)  # seeded
+    save_mesh(tmp_path / "skirt.obj", skirt)
+    args = ["bench", "sim", "--garment", str(tmp_path / "skirt.obj"), "--clips", "walk",
+            "--qualities", "", "--settings", "1,2", "--frames", "3", "--transition", "0.1",
+            "--settle", "0.0", "--floor", "--set", "damping=0.5", "--out", str(tmp_path / "b")]  # fmt: skip
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    assert "floor mean / p95 mm" in table
+    result = json.loads((tmp_path / "b" / "sim.json").read_text())
+    (row,) = result["rows"]
+    assert 0 <= row["floor_mean_mm"] <= row["floor_p95_mm"]
+    assert result["sim"]["damping"] == 0.5 and "substeps" not in result["sim"]
