@@ -11,7 +11,8 @@ from core.errors import InputError
 from core.mesh import unique_edges
 from core.sim.config import FABRICS, SimConfig
 from core.sim.drive import body_drive
-from core.sim.pins import boundary_loops, find_pins
+from core.mesh import boundary_loops
+from core.sim.pins import find_pins
 from core.sim.simulate import edge_strain
 from core.skeleton import forward_kinematics, skinning_transforms
 from tests.conftest import assert_close

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from collections import defaultdict
-
 import numpy as np
 
+from core.mesh import boundary_loops, edge_counts
 from core.proxy.config import ENCLOSE_BINS, ENCLOSE_COVERAGE, SLIVER_ANGLE_DEG
 
 #: Faces sampled per patch, and rays per face side, for the visibility orientation test.
@@ -65,56 +64,6 @@ def drop_small_components(
     dropped = int(len(present) - keep[present].sum())
     v, f, _ = compact(vertices, faces[keep_face])
     return v, f, dropped
-
-
-def edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Undirected edges ``(E, 2)`` int64 (sorted pairs) and how many faces use each, ``(E,)``."""
-    e = np.sort(np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    n = int(e.max()) + 1 if len(e) else 1
-    keys, counts = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)
-    return np.stack([keys // n, keys % n], axis=1), counts
-
-
-def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Boundary loops as vertex index arrays (edges used by exactly one face), longest first.
-
-    Works on non-manifold input: a boundary vertex with several outgoing boundary edges is
-    walked greedily, so every boundary edge lands in exactly one loop.
-    """
-    edges, counts = edge_counts(faces)
-    b = edges[counts == 1]
-    if len(b) == 0:
-        return []
-
-    nbrs: dict[int, list[int]] = defaultdict(list)
-    for a, c in b:
-        nbrs[int(a)].append(int(c))
-        nbrs[int(c)].append(int(a))
-    used: set[tuple[int, int]] = set()
-    loops = []
-    for a, c in b:
-        key = (int(a), int(c))
-        if key in used:
-            continue
-        used.add(key)
-        loop = [int(a), int(c)]
-        while True:
-            cur, prev = loop[-1], loop[-2]
-            nxt = None
-            for n in nbrs[cur]:
-                k = (min(cur, n), max(cur, n))
-                if k not in used and n != prev:
-                    nxt = n
-                    break
-            if nxt is None:
-                break
-            used.add((min(cur, nxt), max(cur, nxt)))
-            if nxt == loop[0]:
-                break
-            loop.append(nxt)
-        loops.append(np.array(loop, np.int64))
-    loops.sort(key=len, reverse=True)
-    return loops
 
 
 def orient_consistently(vertices: np.ndarray, faces: np.ndarray, seed: int = 0) -> np.ndarray:

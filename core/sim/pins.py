@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from core.errors import InputError
-from core.mesh import vertex_normals
+from core.mesh import boundary_loops, vertex_normals
 from core.proxy.metrics import barycentric, point_to_mesh
 from core.skeleton import Skeleton
 
@@ -57,33 +57,6 @@ class Pins:
         x = self.rest.astype(np.float64)
         out = np.einsum("...pab,pb->...pa", m[..., :3, :3], x) + m[..., :3, 3]
         return out.astype(np.float32)
-
-
-def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Boundary loops of a triangle mesh: a list of (L,) int64 vertex index arrays.
-
-    Boundary edges are those used by one face; each loop is followed vertex to vertex (a
-    vertex with several boundary edges, a non-manifold pinch, ends a walk).
-    """
-    e = np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.sort(e, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    b = e[counts[inv.reshape(-1)] == 1]
-    nxt: dict[int, int] = {}
-    for a, c in b:
-        nxt.setdefault(int(a), int(c))
-    loops, seen = [], set()
-    for start in sorted(nxt):
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v in nxt and v not in seen:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v]
-        if len(loop) >= 3:
-            loops.append(np.array(loop, np.int64))
-    return loops
 
 
 def _segment_distance(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

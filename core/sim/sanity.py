@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.errors import InputError
-from core.sim.pins import boundary_loops
+from core.mesh import boundary_loops
 
 #: Default axis of the waist: the vertical (+Y up).
 UP = (0.0, 1.0, 0.0)
