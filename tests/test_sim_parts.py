@@ -8,10 +8,9 @@ import pytest
 from core.body.colliders import body_capsules, capsule_distance, pose_capsules
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.errors import InputError
-from core.mesh import unique_edges
+from core.mesh import boundary_loops, unique_edges
 from core.sim.config import FABRICS, SimConfig
 from core.sim.drive import body_drive
-from core.mesh import boundary_loops
 from core.sim.pins import find_pins
 from core.sim.simulate import edge_strain
 from core.skeleton import forward_kinematics, skinning_transforms
