@@ -95,6 +95,19 @@ def test_ssim_matches_the_slow_reference():
     assert_close(ssim(a, b), ssim_reference(a.numpy(), b.numpy()), atol=1e-10, what="SSIM")
 
 
+def test_ssim_matches_pytorch_msssim():
+    """A maintained library (pytorch-msssim) gives the same full-frame SSIM: same window, same
+    constants, "valid" filtering, channels averaged. Ours stays because the garment-region SSIM
+    needs the map of window SSIMs, which the library does not return."""
+    from pytorch_msssim import ssim as library_ssim
+
+    a = _images(3, 64, seed=7).double()
+    b = (0.6 * a + 0.4 * _images(3, 64, seed=8).double()).clamp(0, 1)
+    b[1] = a[1]  # identical frames: 1 in both
+    theirs = library_ssim(a, b, data_range=1.0, size_average=False)
+    assert_close(ssim(a, b), theirs, atol=1e-6, what="SSIM against pytorch-msssim")
+
+
 def test_masked_ssim_averages_inside_the_mask():
     a = _images(1, 24)
     b = a.clone()

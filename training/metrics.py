@@ -23,9 +23,9 @@ counts (the garment), 0 elsewhere; values in between weight the pixel.
   out and counts only the others (``n``), so an all-empty metric reports ``n = 0`` and
   ``mean = std = None``.
 - Our own SSIM, not a library's: the garment-region SSIM needs the SSIM map of the valid
-  windows, which pytorch-msssim does not return; torchmetrics can return a map, but that it
-  equals this one pixel for pixel is not checked, and a switch would move every reported SSIM.
-  :func:`ssim_reference` (a plain loop over windows) tests ours.
+  windows, which pytorch-msssim does not return. Its full-frame SSIM equals ours within 1e-6
+  (``tests/test_metrics.py``, pytorch-msssim a test dependency), and :func:`ssim_reference` (a
+  plain loop over windows) checks ours to 1e-10.
 - Flicker (temporal stability) of consecutive frames t, t+1 of one clip:
   ``mean |(R_{t+1} - R_t) - (I_{t+1} - I_t)|`` over pixels and channels: how much the rendering
   changes beyond what the ground truth changes (0 for a perfect or a perfectly consistently
