@@ -51,6 +51,7 @@ def test_short_simulation_is_settled_and_sane(skirt, first_run):
     assert report.frames == 6 and report.steps_per_frame == 2
     assert report.ms_per_frame > 0 and report.pinned >= 24
     assert cache.params["sim"]["fabric"] == "cotton" and cache.params["steps_per_frame"] == 2
+    assert cache.params["solver"] == "newton.SolverStyle3D"  # the default, style3d
 
 
 def test_same_inputs_give_the_same_cache(skirt, first_run):

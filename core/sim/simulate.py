@@ -58,6 +58,10 @@ KINEMATIC_CONTACT_WEIGHT = 1.0e-6
 STYLE3D_VELOCITY_FACTOR = 0.998
 
 
+#: The newton solver class each :attr:`SimConfig.solver` runs, as the cache's params name it.
+SOLVER_CLASSES = {"style3d": "newton.SolverStyle3D", "vbd": "newton.SolverVBD"}
+
+
 class _RecordedLaunches:
     """Warp, as newton's Style3D solver sees it, with every kernel launch recorded once.
 
@@ -751,7 +755,7 @@ def simulate(
         "pinned_indices": pins.indices.tolist(),
         "sewn_vertices": int(len(seams.indices)),
         "colliders": list(capsules.names),
-        "solver": "newton.SolverVBD",
+        "solver": SOLVER_CLASSES[config.solver],
         "newton_version": _newton_version(),
     }
     return SimCache(positions, garment.faces.astype(np.int64), float(motion.fps), params), report
