@@ -163,3 +163,34 @@ def test_serial_pcg_solves_as_newtons(skirt, monkeypatch):
     monkeypatch.setattr(sim_module._Scene, "_serial_pcg", both)
     simulate(skirt, spin_motion(3), BodyShape(), FAST)
     assert len(worst) > 10 and max(worst) < 1e-4, max(worst)
+
+
+def test_plain_iterations_are_newtons_step_bit_for_bit(skirt, first_run, monkeypatch):
+    # chebyshev_rho = 0 (the plain iterations): core.sim.style3d's loop against newton's own
+    # SolverStyle3D.step (its control argument is unused): the caches are identical.
+    from core.sim.style3d import AcceleratedStep
+
+    def newtons_step(self, state_in, state_out, contacts, dt):
+        self.solver.step(state_in, state_out, None, contacts, dt)
+
+    monkeypatch.setattr(AcceleratedStep, "__call__", newtons_step)
+    theirs, _ = simulate(skirt, spin_motion(6), BodyShape(), FAST)
+    assert np.array_equal(theirs.positions, first_run[0].positions)
+
+
+def test_chebyshev_weights_and_a_spin_with_them():
+    from core.sim.style3d import CHEBYSHEV_DELAY, chebyshev_omegas
+
+    plain = chebyshev_omegas(0.0, 8)
+    assert plain == [1.0] * 8
+    w = chebyshev_omegas(0.9, 8)
+    assert w[: CHEBYSHEV_DELAY + 1] == [1.0] * (CHEBYSHEV_DELAY + 1)
+    assert w[CHEBYSHEV_DELAY + 1] == pytest.approx(2 / (2 - 0.81))
+    assert all(1 < a < 2 for a in w[CHEBYSHEV_DELAY + 1 :])  # over-relaxation, below 2
+    with pytest.raises(Exception, match="chebyshev_rho"):
+        SimConfig(chebyshev_rho=1.0)
+    cache, report = simulate(
+        frustum_skirt(24, 12), spin_motion(6), BodyShape(), replace(FAST, chebyshev_rho=0.9)
+    )
+    assert np.isfinite(cache.positions).all() and report.strain_max < 0.2
+    assert not report.retried_frames

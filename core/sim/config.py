@@ -89,6 +89,10 @@ class SimConfig:
     """Conjugate-gradient iterations of each Style3D iteration's linear solve (newton's
     default is 10). Too few and the waist's motion does not reach the hem within a step: the
     skirt lags the body and winds up on a spin (see :data:`QUALITY`)."""
+    chebyshev_rho: float = 0.0
+    """Spectral radius that weighs the Chebyshev acceleration of the Style3D iterations
+    (:mod:`core.sim.style3d`); 0 runs them plain, as newton does. Closer to 1 extrapolates more:
+    the same iterations get further, until it overshoots."""
     self_collision: bool | None = None
     """Cloth-cloth contact. ``None``: on when the garment has several pieces (layers, frills:
     where layers touch), off for a single surface such as a proxy (nothing to collide with).
@@ -142,6 +146,7 @@ class SimConfig:
             "substeps": self.substeps >= 1,
             "iterations": self.iterations >= 1,
             "linear_iterations": self.linear_iterations >= 1,
+            "chebyshev_rho": 0 <= self.chebyshev_rho < 1,
             "transition_s": self.transition_s >= 0,
             "settle_s": self.settle_s >= 0,
             "pin_distance": self.pin_distance >= 0,

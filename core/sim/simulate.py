@@ -327,9 +327,14 @@ class _Scene:
                     config=newton.solvers.SolverStyle3D.Config(iterations=config.iterations),
                 )
             self.solver.config.linear_iterations = config.linear_iterations
+            launch = wp.launch
             if not self.device.is_cuda:
                 self._serial_pcg()
                 _record_style3d_launches(wp)
+                launch = _RecordedLaunches(wp).launch
+            from core.sim.style3d import AcceleratedStep  # imports warp and newton: deferred
+
+            self.style3d_step = AcceleratedStep(self.solver, config.chebyshev_rho, launch)
             col = self.solver.collision
             # Style3D keeps twice this radius between cloth pieces (its "thickness").
             col.radius = 0.5 * config.self_contact_thickness
@@ -539,7 +544,10 @@ class _Scene:
         self._sew(dt)
         self.s0.clear_forces()
         self.pipeline.collide(self.s0, self.contacts)
-        self.solver.step(self.s0, self.s1, self.control, self.contacts, dt)
+        if self.config.solver == "style3d":
+            self.style3d_step(self.s0, self.s1, self.contacts, dt)
+        else:
+            self.solver.step(self.s0, self.s1, self.control, self.contacts, dt)
         self.s0, self.s1 = self.s1, self.s0
         factor = float(np.exp(-self.config.damping * dt))
         if self.config.solver == "style3d":
