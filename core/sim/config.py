@@ -56,6 +56,14 @@ FABRICS: dict[str, Fabric] = {
 #: flapping folds diverge from small differences, so that distance has a floor.
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
+#: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).
+#: On the quick project's 1033-vertex proxy under the twirl (8 x 16) the hem keeps 0.85x its
+#: standing radius instead of 0.57x (32 x 64: 0.93x plain). Against 32 x 64 runs, plain and
+#: accelerated, 8 x 16 lands 17-19 mm (mean) away instead of 37-42 on the twirl, 30-35 instead
+#: of 38-43 on the walk (30 frames; README "Simulation quality"). 0.995 and 0.98 were no closer
+#: to the 2x finer runs of ``dng bench sim``; 0.999 blew up the long skirt's lead-in.
+CHEBYSHEV_RHO = 0.99
+
 #: Cloth solvers of newton that :func:`core.sim.simulate.simulate` drives.
 SOLVERS = ("style3d", "vbd")
 
@@ -89,10 +97,12 @@ class SimConfig:
     """Conjugate-gradient iterations of each Style3D iteration's linear solve (newton's
     default is 10). Too few and the waist's motion does not reach the hem within a step: the
     skirt lags the body and winds up on a spin (see :data:`QUALITY`)."""
-    chebyshev_rho: float = 0.0
+    chebyshev_rho: float | None = None
     """Spectral radius that weighs the Chebyshev acceleration of the Style3D iterations
     (:mod:`core.sim.style3d`); 0 runs them plain, as newton does. Closer to 1 extrapolates more:
-    the same iterations get further, until it overshoots."""
+    the same iterations get further, until it overshoots. ``None``: :data:`CHEBYSHEV_RHO` for a
+    single surface (a proxy), 0 with cloth-cloth contact (extrapolated layers 4 mm apart blew
+    up the multilayer skirt's first step)."""
     self_collision: bool | None = None
     """Cloth-cloth contact. ``None``: on when the garment has several pieces (layers, frills:
     where layers touch), off for a single surface such as a proxy (nothing to collide with).
@@ -146,7 +156,7 @@ class SimConfig:
             "substeps": self.substeps >= 1,
             "iterations": self.iterations >= 1,
             "linear_iterations": self.linear_iterations >= 1,
-            "chebyshev_rho": 0 <= self.chebyshev_rho < 1,
+            "chebyshev_rho": self.chebyshev_rho is None or 0 <= self.chebyshev_rho < 1,
             "transition_s": self.transition_s >= 0,
             "settle_s": self.settle_s >= 0,
             "pin_distance": self.pin_distance >= 0,

@@ -43,7 +43,7 @@ from core.body.skinning import motion_arrays
 from core.errors import InputError
 from core.mesh import Mesh, count_components, unique_edges
 from core.sim.cache import SimCache
-from core.sim.config import SimConfig
+from core.sim.config import CHEBYSHEV_RHO, SimConfig
 from core.sim.drive import BodyDrive, body_drive
 from core.sim.pins import Seams, find_pins, find_seams
 
@@ -668,6 +668,9 @@ def simulate(
         notes.append(
             f"self-collision {'on: the garment has several pieces' if layered else 'off: one surface'}"
         )
+    if config.chebyshev_rho is None:
+        rho = 0.0 if config.self_collision else CHEBYSHEV_RHO
+        config = replace(config, chebyshev_rho=rho)
     scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0])
     poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
     velocities = scene._body_vel(poses[:-1], poses[1:], drive.dt)
