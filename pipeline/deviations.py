@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from core.sim.config import CHEBYSHEV_RHO
 from pipeline.config import (
     PipelineConfig,
     available_extra_motions,
@@ -140,7 +141,7 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the detailed garment simulated (Marvelous Designer)",
             "the proxy simulated (newton, Style3D, "
             + steps
-            + "); the detailed target embedded in it: its details keep their offsets, no "
+            + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}); the detailed target embedded in it: its details keep their offsets, no "
             "secondary motion of their own",
             "simulating stacked layers millimetres apart takes minutes per clip on 2 cores; "
             "Marvelous Designer is not available",
@@ -149,7 +150,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
         add(
             "ground truth",
             "the detailed garment simulated (Marvelous Designer)",
-            f"simulated with newton (Style3D, {steps})",
+            f"simulated with newton (Style3D, {steps}; the proxy Chebyshev-accelerated, rho "
+            f"{CHEBYSHEV_RHO}, the layers not: they touch)",
             "Marvelous Designer is not available",
         )
     if config.proxy_template:

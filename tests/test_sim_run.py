@@ -48,6 +48,10 @@ def test_short_simulation_is_settled_and_sane(skirt, first_run):
     assert report.compression_max == pytest.approx(float(-strain.min()), rel=1e-5)
     assert report.strain_max < report.strain_limit
     assert report.penetration_mean_mm < 2.0
+    from core.sim.sanity import hem_indices, hem_radius_ratio
+
+    hem, waist = hem_indices(skirt.vertices, skirt.faces), np.array(cache.params["pinned_indices"])
+    assert report.hem_radius_ratio == pytest.approx(hem_radius_ratio(cache.positions, hem, waist))
     assert report.frames == 6 and report.steps_per_frame == 2
     assert report.ms_per_frame > 0 and report.pinned >= 24
     assert cache.params["sim"]["fabric"] == "cotton" and cache.params["steps_per_frame"] == 2
@@ -84,8 +88,8 @@ def test_cli_simulate_writes_cache_report_and_refuses_garbage(tmp_path, skirt, c
     write_bvh(tmp_path / "spin.bvh", spin_motion(4))
     args = [
         "simulate", "--garment", str(tmp_path / "skirt.obj"), "--motion", str(tmp_path / "spin.bvh"),
-        "--substeps", "2", "--iterations", "4", "--transition", "0.2", "--json",
-        "--out", str(tmp_path / "c.npz"), "--export", str(tmp_path / "c.pc2"),
+        "--substeps", "2", "--iterations", "4", "--transition", "0.2", "--chebyshev", "0.5",
+        "--json", "--out", str(tmp_path / "c.npz"), "--export", str(tmp_path / "c.pc2"),
         "--preview", str(tmp_path / "p.png"),
     ]  # fmt: skip
     assert main(args) == 0
@@ -95,6 +99,7 @@ def test_cli_simulate_writes_cache_report_and_refuses_garbage(tmp_path, skirt, c
     assert (tmp_path / "c.report.json").is_file()
     cache = load_cache(tmp_path / "c.npz")
     assert cache.positions.shape == (4, skirt.num_vertices, 3)
+    assert cache.params["sim"]["chebyshev_rho"] == 0.5 and report["hem_radius_ratio"] > 0
     # Round trip through the PC2 export and the import path of the CLI.
     imp = ["simulate", "--import", str(tmp_path / "c.pc2"), "--garment", str(tmp_path / "skirt.obj"),
            "--out", str(tmp_path / "i.npz"), "--fps", "30"]  # fmt: skip

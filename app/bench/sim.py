@@ -80,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settle", type=float, default=0.2, help="lead-in hold, s (0.2)")
     parser.add_argument("--device", default="cpu", help="warp device (cpu or cuda)")
     parser.add_argument(
-        "--floor", action="store_true",
+        "--floor",
+        action="store_true",
         help="also run each setting on the garment moved by 10 um at random: how far the "
         "cloth's own sensitivity alone moves it (the distance no finer setting can remove)",
     )

@@ -84,6 +84,11 @@ def register(subparsers) -> None:
     p.add_argument("--substeps", type=int, default=None, help="solver steps per 1/30 s")
     p.add_argument("--iterations", type=int, default=None, help="solver iterations per step")
     p.add_argument(
+        "--chebyshev", type=float, default=None, metavar="RHO",
+        help="Chebyshev weight of the solver's iterations, 0 <= RHO < 1; 0 runs them plain "
+        "(default: 0.99 for one surface, 0 with cloth-cloth contact)",
+    )  # fmt: skip
+    p.add_argument(
         "--self-collision", action=argparse.BooleanOptionalAction, default=None,
         help="cloth-cloth contact (default: on for garments in several pieces, e.g. layers)",
     )  # fmt: skip
@@ -171,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
         k: v
         for k, v in {
             "solver": args.solver, "substeps": args.substeps, "iterations": args.iterations,
-            "transition_s": args.transition,
+            "transition_s": args.transition, "chebyshev_rho": args.chebyshev,
         }.items()
         if v is not None
     }  # fmt: skip

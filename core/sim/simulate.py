@@ -46,6 +46,7 @@ from core.sim.cache import SimCache
 from core.sim.config import CHEBYSHEV_RHO, SimConfig
 from core.sim.drive import BodyDrive, body_drive
 from core.sim.pins import Seams, find_pins, find_seams
+from core.sim.sanity import hem_indices, hem_radius_ratio
 
 #: Weight of a kinematic particle in Style3D's cloth-cloth contacts (its solver row is 0; a free
 #: particle's holds its stretch stiffness and mass / dt^2, orders of magnitude more): small
@@ -169,6 +170,10 @@ class SimReport:
     penetration_max_mm: float = 0.0
     penetrating_fraction: float = 0.0
     """Fraction of free vertex-frames inside the colliders."""
+    hem_radius_ratio: float | None = None
+    """The hem's mean distance from the waist's axis over the clip's second half over frame
+    0's (:func:`core.sim.sanity.hem_radius_ratio`): above 1 the hem flared out (a spin), below
+    it closed in. None without a boundary loop below the pinned one."""
     finite: bool = True
     notes: list = field(default_factory=list)
 
@@ -787,6 +792,10 @@ def _report(
     ends = pose_capsules(capsules, drive.transforms[[drive.frame_step(f) for f in range(t)]])
     free = np.setdiff1d(np.arange(garment.num_vertices), pins.indices)
     depth = penetration_depths(positions[:, free], ends, capsules.radii)
+    hem = hem_indices(garment.vertices, garment.faces)
+    flare = None
+    if t >= 2 and len(pins.indices) and not np.isin(hem, pins.indices).all():
+        flare = hem_radius_ratio(positions, hem, pins.indices)
     return SimReport(
         frames=t,
         vertices=garment.num_vertices,
@@ -808,6 +817,7 @@ def _report(
         penetration_p99_mm=float(np.percentile(depth, 99) * 1000) if depth.size else 0.0,
         penetration_max_mm=float(depth.max() * 1000) if depth.size else 0.0,
         penetrating_fraction=float((depth > 0).mean()) if depth.size else 0.0,
+        hem_radius_ratio=flare,
         finite=bool(np.isfinite(positions).all()),
         notes=list(notes),
     )
