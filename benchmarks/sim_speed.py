@@ -26,18 +26,25 @@ def run_once(garment, motion, shape, substeps: int, iterations: int, ours: bool)
 
     from core.sim import simulate as sim
     from core.sim.config import SimConfig
+    from core.sim.style3d import AcceleratedStep
 
-    cfg = SimConfig(substeps=substeps, iterations=iterations, transition_s=0.2, settle_s=0.1)
-    saved = sim._Scene._serial_pcg, sim._record_style3d_launches
-    if not ours:  # newton's own: no serial PCG, no recorded launches
+    # Plain iterations both ways (the acceleration costs one small kernel an iteration).
+    cfg = SimConfig(
+        substeps=substeps, iterations=iterations, transition_s=0.2, settle_s=0.1, chebyshev_rho=0
+    )
+    saved = sim._Scene._serial_pcg, sim._record_style3d_launches, AcceleratedStep.__call__
+    if not ours:  # newton's own: its step, no serial PCG, no recorded launches
         sim._Scene._serial_pcg = lambda self: None
         sim._record_style3d_launches = lambda wp_: None
         solver_style3d.wp = collision.wp = wp
+        AcceleratedStep.__call__ = lambda self, s_in, s_out, contacts, dt: self.solver.step(
+            s_in, s_out, None, contacts, dt
+        )
     try:
         with contextlib.redirect_stdout(sys.stderr):
             _, report = sim.simulate(garment, motion, shape, cfg)
     finally:
-        sim._Scene._serial_pcg, sim._record_style3d_launches = saved
+        sim._Scene._serial_pcg, sim._record_style3d_launches, AcceleratedStep.__call__ = saved
     return report.ms_per_frame
 
 

@@ -52,16 +52,17 @@ FABRICS: dict[str, Fabric] = {
 #: 15 frames (``--qualities draft,medium``) the mean / p95 distances in mm were, draft then
 #: medium: dance 41.8 / 110, 15.0 / 39; walk 27.1 / 90, 21.8 / 65; jump 22.6 / 78, 12.9 / 33;
 #: twirl 47.8 / 114, 28.2 / 87; CMU 01_01 26.0 / 68, 15.2 / 46 (README: the full table).
-#: ``final`` on the twirl (folded long skirt, 1488 vertices): 29.4 / 101 from 32 x 64; the
-#: flapping folds diverge from small differences, so that distance has a floor.
+#: ``final`` on the twirl (folded long skirt, 1488 vertices): 29.4 / 101 from 32 x 64. Not the
+#: cloth's own sensitivity: moving the garment 10 um moves a plain run 1.1-2.2 mm mean (``--floor``). The
+#: iterations themselves are slow to converge; :data:`CHEBYSHEV_RHO` accelerates a proxy's.
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
 #: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).
 #: On the quick project's 1033-vertex proxy under the twirl (8 x 16) the hem keeps 0.85x its
-#: standing radius instead of 0.57x (32 x 64: 0.93x plain). Against 32 x 64 runs, plain and
-#: accelerated, 8 x 16 lands 17-19 mm (mean) away instead of 37-42 on the twirl, 30-35 instead
-#: of 38-43 on the walk (30 frames; README "Simulation quality"). 0.995 and 0.98 were no closer
-#: to the 2x finer runs of ``dng bench sim``; 0.999 blew up the long skirt's lead-in.
+#: standing radius instead of 0.57x (32 x 32 plain: 0.93x; 16 x 32 accelerated: 1.00x), and
+#: ``dng bench sim`` puts it closer to its 2x finer run on the dance, twirl and CMU clip, further
+#: on the walk and jump (README "Simulation quality"). 0.98 and 0.995 were no better overall;
+#: 0.999 blew up the long skirt's lead-in.
 CHEBYSHEV_RHO = 0.99
 
 #: Cloth solvers of newton that :func:`core.sim.simulate.simulate` drives.
