@@ -53,8 +53,8 @@ FABRICS: dict[str, Fabric] = {
 #: medium: dance 41.8 / 110, 15.0 / 39; walk 27.1 / 90, 21.8 / 65; jump 22.6 / 78, 12.9 / 33;
 #: twirl 47.8 / 114, 28.2 / 87; CMU 01_01 26.0 / 68, 15.2 / 46 (README: the full table).
 #: ``final`` on the twirl (folded long skirt, 1488 vertices): 29.4 / 101 from 32 x 64. Not the
-#: cloth's own sensitivity: moving the garment 10 um moves a plain run 1.1-2.2 mm mean (``--floor``). The
-#: iterations themselves are slow to converge; :data:`CHEBYSHEV_RHO` accelerates a proxy's.
+#: cloth's own sensitivity: moving the garment 10 um moves a plain run 1.1-2.2 mm mean
+#: (``--floor``). The iterations converge slowly; :data:`CHEBYSHEV_RHO` accelerates a proxy's.
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
 #: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).
