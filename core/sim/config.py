@@ -58,7 +58,7 @@ FABRICS: dict[str, Fabric] = {
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
 #: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).
-#: On the quick project's 1033-vertex proxy under the twirl (8 x 16) the hem keeps 0.85x its
+#: On the quick project's 989-vertex proxy under the twirl (8 x 16) the hem keeps 0.85x its
 #: standing radius instead of 0.57x (32 x 32 plain: 0.93x; 16 x 32 accelerated: 1.00x), and
 #: ``dng bench sim`` puts it closer to its 2x finer run on the dance, twirl and CMU clip, further
 #: on the walk and jump (README "Simulation quality"). 0.98 and 0.995 were no better overall;

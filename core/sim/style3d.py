@@ -3,7 +3,7 @@
 newton's Style3D solver is projective dynamics: every step runs ``iterations`` local-global
 iterations (forces at the current iterate, one PCG solve with the constant projective-dynamics
 matrix, a move). Such iterations remove high-frequency error fast and smooth, large-scale error
-slowly, and what is left unconverged acts like drag: on the quick project's 1033-vertex proxy
+slowly, and what is left unconverged acts like drag: on the quick project's 989-vertex proxy
 under the procedural twirl the hem closes in to 0.57x its standing radius at 8 x 16 (substeps x
 iterations a frame), 0.68x at 8 x 32, 0.84x at 16 x 32 and 0.93x at 32 x 32 (ratio of the mean
 hem radius over the second half of the clip to frame 0's, :func:`core.sim.sanity.hem_radius_ratio`):
