@@ -167,3 +167,25 @@ def test_template_proxy_ablation(smoke_project, tmp_path):
     assert json.loads((sub / "proxy" / "stage.json").read_text())["params"]["template"]
     result = stage_eval(Project(copy), config)
     assert "ours, short-skirt template as proxy" in result["methods"]
+
+
+def test_ours_to_dnr_gives_garment_region_and_full_frame_ratios():
+    from pipeline.demo import _metrics_table, _ratio_sentence
+    from pipeline.stages.evaluate import ours_to_dnr
+
+    def method(mse, masked):
+        s = {"mean": 0.5, "std": 0.1, "n": 4}
+        return {"mse": {"mean": mse, "std": 0.0, "n": 4}, "mse_masked": {**s, "mean": masked},
+                "psnr": s, "ssim": s, "ssim_masked": s, "flicker": s}  # fmt: skip
+
+    methods = {"ours": method(0.006, 0.04), "dnr": method(0.008, 0.032),
+               "ours (simulated proxy)": method(0.002, 0.01)}  # fmt: skip
+    r = ours_to_dnr(methods)
+    assert r["mse_ratio_ours_to_dnr"] == pytest.approx(0.75)
+    assert r["mse_masked_ratio_ours_to_dnr"] == pytest.approx(1.25)
+    assert not any(k.endswith("simulated_proxy") for k in r)  # DNR did not run on it
+    text = _ratio_sentence(methods)
+    assert text.index("garment-region MSE 1.25") < text.index("full-frame MSE 0.75")
+    header = _metrics_table(methods)[0]
+    assert header.index("MSE, garment") < header.index("| MSE |")  # the headline first
+    assert ours_to_dnr({"ours": methods["ours"]}) == {} and _ratio_sentence({}) == ""

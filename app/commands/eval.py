@@ -17,7 +17,7 @@ from pipeline.config import available_test_motions, project_config
 from pipeline.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
 from pipeline.stages.ablations import check_ablation, stage_ablation
 from pipeline.stages.dataset import stage_testset
-from pipeline.stages.evaluate import stage_eval
+from pipeline.stages.evaluate import ours_to_dnr, stage_eval
 from pipeline.stages.simulate import stage_simulate
 
 
@@ -123,18 +123,23 @@ def run_renderers(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=1))
         return 0
     print(
-        f"{'method':44s} {'MSE':>16s} {'PSNR':>7s} {'SSIM':>7s} {'MSE garment':>12s} {'flicker':>8s}"
+        f"{'method':44s} {'MSE garment':>12s} {'MSE':>16s} {'PSNR':>7s} {'SSIM':>7s} {'flicker':>8s}"
     )
     for name, m in report["methods"].items():
         print(
-            f"{name:44s} {m['mse']['mean']:.4f} ± {m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} "
-            f"{m['ssim']['mean']:7.4f} {m['mse_masked']['mean']:12.4f} {m['flicker']['mean']:8.4f}"
+            f"{name:44s} {m['mse_masked']['mean']:12.4f} {m['mse']['mean']:.4f} ± "
+            f"{m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} {m['ssim']['mean']:7.4f} "
+            f"{m['flicker']['mean']:8.4f}"
         )
-    if "mse_ratio_ours_to_dnr" in report:
-        print(f"MSE ours / DNR, on Joint2Coarse's proxy: {report['mse_ratio_ours_to_dnr']:.2f}")
-    if "mse_ratio_ours_to_dnr_simulated_proxy" in report:
-        ratio = report["mse_ratio_ours_to_dnr_simulated_proxy"]
-        print(f"MSE ours / DNR, on the simulated proxy: {ratio:.2f}")
+    ratios = ours_to_dnr(report["methods"])
+    for metric, what in (("mse_masked", "garment-region MSE"), ("mse", "MSE")):
+        for suffix, proxy in (
+            ("", "Joint2Coarse's proxy"),
+            ("_simulated_proxy", "the simulated proxy"),
+        ):
+            key = f"{metric}_ratio_ours_to_dnr{suffix}"
+            if key in ratios:
+                print(f"{what} ours / DNR, on {proxy}: {ratios[key]:.2f}")
     p = report.get("protocol_p")
     if p and "mse_ratio_ours_to_dnr" in p:
         print(

@@ -48,14 +48,20 @@ def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Pa
     return methods
 
 
-def _ratios(methods: dict) -> dict:
-    """Our MSE over DNR's, on Joint2Coarse's proxy and on the simulated one (when DNR ran)."""
+def ours_to_dnr(methods: dict) -> dict:
+    """Our MSE over DNR's, full frame (``mse_ratio_ours_to_dnr``) and on the garment region
+    (``mse_masked_ratio_ours_to_dnr``), on Joint2Coarse's proxy and, with the suffix
+    ``_simulated_proxy``, on the simulated one: those of the pairs that both ran and have a mean."""
     out = {}
     for suffix in ("", " (simulated proxy)"):
-        ours, dnr = methods[f"ours{suffix}"], methods.get(f"dnr{suffix}")
-        if dnr and dnr["mse"]["mean"]:
-            key = "mse_ratio_ours_to_dnr" + ("_simulated_proxy" if suffix else "")
-            out[key] = ours["mse"]["mean"] / dnr["mse"]["mean"]
+        ours, dnr = methods.get(f"ours{suffix}"), methods.get(f"dnr{suffix}")
+        if not (ours and dnr):
+            continue
+        for metric in ("mse", "mse_masked"):
+            mine, theirs = ours[metric]["mean"], dnr[metric]["mean"]
+            if mine is not None and theirs:
+                key = f"{metric}_ratio_ours_to_dnr" + ("_simulated_proxy" if suffix else "")
+                out[key] = mine / theirs
     return out
 
 
@@ -141,9 +147,9 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
             )
             outputs.append(f"compare-{motion}.png")
         report["methods"] = {name: totals[name].summary() for name in methods}
-        report.update(_ratios(report["methods"]))
+        report.update(ours_to_dnr(report["methods"]))
         p = {"motion": train, "methods": {name: seen[name].summary() for name in own}}
-        p.update(_ratios(p["methods"]))
+        p.update(ours_to_dnr(p["methods"]))
         report["protocol_p"] = p
         write_json(out / "report.json", report)
         return [*outputs, "report.json"]
