@@ -104,12 +104,13 @@ def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
     assert r.returncode == 0, r.stderr
     for name in ("ours", "ours (simulated proxy)", "pix2pix", "dnr", "dnr-gan"):
         assert name in r.stdout
+    assert "garment-region MSE ours / DNR, on Joint2Coarse's proxy:" in r.stdout
     report = json.loads((project / "eval" / "report.json").read_text())
     assert report["test_motions"] == ["twirl", "cmu-01_01"]
     for name, m in report["methods"].items():
         assert m["mse"]["n"] > 0 and 0 <= m["mse"]["mean"] <= 1, name
         assert 0 < m["ssim"]["mean"] <= 1 and m["flicker"]["n"] > 0, name
-    assert report["mse_ratio_ours_to_dnr"] > 0
+    assert report["mse_ratio_ours_to_dnr"] > 0 and report["mse_masked_ratio_ours_to_dnr"] > 0
     assert (project / "eval" / "compare-twirl.png").stat().st_size > 1000
     # --json: stdout is the report alone (progress on stderr), even when stages rerun.
     (project / "eval" / "stage.json").unlink()
