@@ -541,14 +541,21 @@ def report_markdown(report: dict) -> str:
         "",
         "## Simulation (newton, CPU)",
         "",
-        "| clip | frames | vertices | ms/frame | penetration mean / max (mm) | max strain | finite |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "Hem ratio: the hem's mean distance from the waist's axis over the clip's second half "
+        "over frame 0's (above 1: it flared out, below 1: it closed in; n/a for an embedded "
+        "target, or a simulation made before the figure existed).",
+        "",
+        "| clip | frames | vertices | ms/frame | penetration mean / max (mm) | max strain | "
+        "hem ratio | finite |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, s in report["simulation"].items():
+        flare = s.get("hem_radius_ratio")
         lines.append(
             f"| {name} | {s['frames']} | {s['vertices']} | {s['ms_per_frame']:.0f} | "
             f"{s['penetration_mean_mm']:.2f} / {s['penetration_max_mm']:.1f} | "
-            f"{s['strain_max']:.3f} | {s['finite']} |"
+            f"{s['strain_max']:.3f} | {'n/a' if flare is None else f'{flare:.2f}'} | "
+            f"{s['finite']} |"
         )
     lines += _ground_truth_markdown(report)
     j = report["joint2coarse"]

@@ -37,6 +37,9 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     for name, sim in report["simulation"].items():
         assert sim["finite"], name
         assert sim["penetration_mean_mm"] < 5.0, name
+        if name.endswith("-proxy"):  # simulated (the targets are embedded): its hem's ratio
+            assert 0.3 < sim["hem_radius_ratio"] < 3.0, name
+    assert "| hem ratio |" in (out / "report.md").read_text()
     proxy = report["proxy"]["proxy"]
     assert proxy["boundary_loops"] == 2 and proxy["components"] == 1
     j2c = report["joint2coarse"]
