@@ -141,8 +141,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the detailed garment simulated (Marvelous Designer)",
             "the proxy simulated (newton, Style3D, "
             + steps
-            + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}); the detailed target embedded in it: its details keep their offsets, no "
-            "secondary motion of their own",
+            + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}); the detailed target embedded in "
+            "it: its details keep their offsets, no secondary motion of their own",
             "simulating stacked layers millimetres apart takes minutes per clip on 2 cores; "
             "Marvelous Designer is not available",
         )

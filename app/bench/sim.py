@@ -88,7 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="another simulation setting of every run (core.sim.config.SimConfig), e.g. "
-        "--set air_drag=0",
+        "--set chebyshev_rho=0",
     )  # fmt: skip
 
 

@@ -58,11 +58,15 @@ FABRICS: dict[str, Fabric] = {
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
 #: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).
-#: On the quick project's 989-vertex proxy under the twirl (8 x 16) the hem keeps 0.85x its
-#: standing radius instead of 0.57x (32 x 32 plain: 0.93x; 16 x 32 accelerated: 1.00x), and
+#: Found on the twirl, a test motion: on the quick project's 989-vertex proxy (8 x 16) the hem
+#: keeps 0.85x its standing radius instead of 0.57x (32 x 32 plain: 0.93x; 16 x 32 accelerated:
+#: 1.00x). Checked on the validation spin (``val-dance-spin``): 0.88x accelerated, 0.78x plain,
+#: against 0.91x at 32 x 32 and 1.03x at 32 x 64 plain (``dng simulate ... --json``). And
 #: ``dng bench sim`` puts it closer to its 2x finer run on the dance, twirl and CMU clip, further
-#: on the walk and jump (README "Simulation quality"). 0.98 and 0.995 were no better overall;
-#: 0.999 blew up the long skirt's lead-in.
+#: on the walk and jump (README "Simulation quality"). 0.99 over 0.98 and 0.995 was read off all
+#: five bench clips, two of them test motions; on the other three alone (dance, walk, jump) 0.98
+#: is 28.6 mm mean against 29.9 for 0.99 (and 25.9 plain, whose reference is less converged):
+#: not re-chosen. 0.999 blew up the long skirt's lead-in.
 CHEBYSHEV_RHO = 0.99
 
 #: Cloth solvers of newton that :func:`core.sim.simulate.simulate` drives.
