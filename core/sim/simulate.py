@@ -334,9 +334,10 @@ class _Scene:
             self.solver.config.linear_iterations = config.linear_iterations
             launch = wp.launch
             if not self.device.is_cuda:
+                self.launcher = _RecordedLaunches(wp)  # the serial PCG's and our step's
                 self._serial_pcg()
                 _record_style3d_launches(wp)
-                launch = _RecordedLaunches(wp).launch
+                launch = self.launcher.launch
             from core.sim.style3d import AcceleratedStep  # imports warp and newton: deferred
 
             self.style3d_step = AcceleratedStep(self.solver, config.chebyshev_rho, launch)
@@ -408,7 +409,7 @@ class _Scene:
         no_contacts = wp.zeros(n, dtype=wp.mat33, device=dev)
         col = solver.collision
 
-        launcher = _RecordedLaunches(wp)
+        launcher = self.launcher
 
         def solve(a_non_diag, a_diag, x0, b, inv_m, x1, iterations, additional=None):
             if x0 is not None and x0.ptr != x1.ptr:
