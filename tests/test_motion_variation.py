@@ -67,15 +67,19 @@ def test_motion_specs_with_variations_keep_their_frame_count(bvh_dir):
     assert motion_from_spec(spec, config).num_frames == 20
 
 
-def test_turn_spins_the_body_in_place(dance):
+def test_turn_spins_the_body_and_keeps_its_speed(dance):
     idle = make_motion("idle", 31, 30.0, 1)
     spun = vary_motion(idle, turn_deg_s=180.0)  # half a turn a second: 90 degrees at frame 15
     p, q = idle.root_positions, spun.root_positions
     np.testing.assert_allclose(q[0], p[0], atol=1e-6)
     np.testing.assert_allclose(q[:, 1], p[:, 1], atol=1e-6)
-    # The body's facing (the root's local +Z) turns by the angle; the path stays about its start.
+    # The body's facing (the root's local +Z) turns by the angle.
     facing = lambda m: m.rotations[:, 0] @ np.array([0.0, 0.0, 1.0], np.float32)  # noqa: E731
     a, b = facing(idle)[30], facing(spun)[30]  # a full half turn at frame 30
     np.testing.assert_allclose(b[[0, 2]], -a[[0, 2]], atol=1e-5)
-    radius = np.linalg.norm((q - q[0])[:, [0, 2]], axis=1)
-    np.testing.assert_allclose(radius, np.linalg.norm((p - p[0])[:, [0, 2]], axis=1), atol=1e-5)
+    # Each step of the root turns with the body: the same length, turned by the frame's angle.
+    walk = make_motion("walk", 31, 30.0, 2)
+    curl = vary_motion(walk, turn_deg_s=90.0)
+    d, e = np.diff(walk.root_positions, axis=0), np.diff(curl.root_positions, axis=0)
+    np.testing.assert_allclose(np.linalg.norm(e, axis=1), np.linalg.norm(d, axis=1), atol=1e-5)
+    np.testing.assert_allclose(e[29, [0, 2]], [d[29, 2], -d[29, 0]], atol=1e-5)  # 90 deg at 30

@@ -46,9 +46,9 @@ def vary_motion(
         The whole clip (root rotation and root path) turned about the vertical axis through the
         origin by this many degrees.
     turn_deg_s : float
-        The body also turns at this many degrees per second about the vertical through its
-        first frame's root (a spin added to the clip: an idle becomes a pirouette), after the
-        speed change.
+        The body also turns at this many degrees per second about the vertical, after the speed
+        change: the root's rotation turns, and so does each frame's step of the root, so the
+        clip's own speed is kept (an idle becomes a pirouette, a walk curls into a circle).
 
     Returns
     -------
@@ -79,7 +79,9 @@ def vary_motion(
         angles = turn_deg_s * np.arange(len(roots)) / out.fps
         turn = Rotation.from_euler("y", angles[:, None], degrees=True).as_matrix()
         turn = turn.astype(np.float32)
-        centre = roots[0] * np.array([1.0, 0.0, 1.0], np.float32)
         rotations[:, 0] = turn @ rotations[:, 0]
-        roots = np.einsum("tij,tj->ti", turn, roots - centre) + centre
+        # Each frame's step turns with the body: the clip's own speed is kept, a walk curls
+        # into a circle, an idle spins in place.
+        steps = np.einsum("tij,tj->ti", turn[1:], np.diff(roots, axis=0))
+        roots = np.concatenate([roots[:1], roots[0] + np.cumsum(steps, axis=0)])
     return replace(out, rotations=rotations, root_positions=roots.astype(np.float32))
