@@ -1,7 +1,7 @@
 """Joint2Coarse on a project's validation motions: the figures every choice is made on.
 
 Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
-[--seeds 0 1 2] [--json] [--test]``
+[--seeds 0 1 2] [--without NAME ...] [--fit-validation] [--json] [--test]``
 
 Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
 joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
@@ -10,13 +10,17 @@ once per ``--seeds`` (the config's ``seed``), in a temporary folder: nothing is 
 project. Prints the mean / p95 / max vertex error (mm) against the simulation of every
 validation motion (``joint2coarse_validation``), their mean over the motions and, with several
 seeds, the mean over seeds, and the training time. ``--test`` adds the test motions: report
-them, never choose on them. ``--no-turn-lags`` measures ours without the turning-rate features
+them, never choose on them. ``--without`` leaves training motions out (names or shell patterns,
+e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-validation`` trains
+on the validation motions too: how closely the model fits motions it has seen, against what it
+does on motions it has not (never a choice: a diagnosis). ``--no-turn-lags`` measures ours without the turning-rate features
 over longer lags (an ablation inside this process).
 """
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import tempfile
 import time
@@ -56,6 +60,14 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print only JSON")
     ap.add_argument("--test", action="store_true", help="also the test motions (report only)")
     ap.add_argument(
+        "--fit-validation", action="store_true",
+        help="diagnosis: train on the validation motions too (how closely it fits what it saw)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--without", nargs="+", default=[], metavar="NAME",
+        help="training motions to leave out (names or shell patterns such as '*-spin')",
+    )  # fmt: skip
+    ap.add_argument(
         "--no-turn-lags", action="store_true",
         help="ablation: ours without the pelvis's turning rate over longer lags (TURN_LAGS)",
     )  # fmt: skip
@@ -70,7 +82,13 @@ def main() -> None:
     config = replace(config, joint2coarse_overrides={**config.joint2coarse_overrides, **changes})
     cfg = joint2coarse_config(config)
     splits = joint2coarse_splits(config)
+    left_out = [n for n in splits["train"] if any(fnmatch.fnmatch(n, p) for p in args.without)]
+    if args.without and not left_out:
+        ap.error(f"--without matches no training motion (they are: {', '.join(splits['train'])})")
+    splits["train"] = [n for n in splits["train"] if n not in left_out]
     clips = [_clip(project, name) for name in splits["train"]]
+    if args.fit_validation:
+        clips += [_clip(project, name) for name in splits["validation"]]
     rig = None
     if cfg.model == "ours":
         rest = load_mesh(project.path("proxy", "positions.obj"))[0].vertices
@@ -109,11 +127,19 @@ def main() -> None:
         }
         for split in scored
     }
-    out = {"config": cfg.to_dict(), "splits": scored, "runs": runs, "mean_over_seeds": summary}
+    out = {
+        "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
+        "fit_validation": args.fit_validation,
+        "runs": runs, "mean_over_seeds": summary,
+    }  # fmt: skip
     if args.json:
         print(json.dumps(out, indent=1))
         return
     print(f"model={cfg.model}, settings changed: {changes or 'none'}")
+    if args.fit_validation:
+        print("trained on the validation motions too: these are fits, not predictions")
+    if left_out:
+        print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")
     for run in runs:
         for split in scored:
             cells = "  ".join(
