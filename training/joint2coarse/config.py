@@ -44,7 +44,9 @@ class Joint2CoarseConfig(PlainConfig):
     project (``dng demo --out P``, then ``python benchmarks/joint2coarse_validation.py P --set
     model=ours --set residual_widths=[W,W] --seeds 0 1``): linear 65.1 / 134, (128, 128) 48.0 /
     103, (256, 256) 46.3 / 96, (512, 512) 45.9 / 94 (within seed noise, 4x the weights),
-    (256, 256, 256) 47.5 / 98; the paper's model on the same splits 55.8 / 124."""
+    (256, 256, 256) 47.5 / 98; the paper's model on the same splits 55.8 / 124. Those were
+    measured with the 6-clip library; with the 19-clip one the quick preset sets (128, 128) and
+    6000 ``residual_steps`` (its comment in ``pipeline/config.py`` gives the figures)."""
     residual_basis: int = 128
     """``ours``: the network predicts the coefficients of this many principal components of the
     training residuals (as ``residual_widths``: 64: 46.8 / 97, 256: 46.7 / 98, the same within
