@@ -13,8 +13,8 @@ seeds, the mean over seeds, and the training time. ``--test`` adds the test moti
 them, never choose on them. ``--without`` leaves training motions out (names or shell patterns,
 e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-validation`` trains
 on the validation motions too: how closely the model fits motions it has seen, against what it
-does on motions it has not (never a choice: a diagnosis). ``--no-turn-lags`` measures ours without the turning-rate features
-over longer lags (an ablation inside this process).
+does on motions it has not (never a choice: a diagnosis). ``--no-turn-lags`` measures ours
+without the turning-rate features over longer lags (an ablation inside this process).
 """
 
 from __future__ import annotations
@@ -86,6 +86,8 @@ def main() -> None:
     if args.without and not left_out:
         ap.error(f"--without matches no training motion (they are: {', '.join(splits['train'])})")
     splits["train"] = [n for n in splits["train"] if n not in left_out]
+    if not splits["train"]:
+        ap.error("--without leaves no training motion")
     clips = [_clip(project, name) for name in splits["train"]]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
