@@ -1,0 +1,44 @@
+"""``benchmarks/joint2coarse_validation.py``: the figures Joint2Coarse's choices are made on,
+with training clips left out (``--without``) and fitted on validation (``--fit-validation``)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "joint2coarse_validation.py"
+
+
+def _run(project: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(BENCH), str(project), *args], capture_output=True, text=True
+    )
+
+
+def test_without_and_fit_validation(smoke_project):
+    steps = [
+        "--set",
+        "autoencoder_steps=20",
+        "--set",
+        "motion_steps=20",
+        "--set",
+        "finetune_steps=5",
+    ]
+    out = _run(smoke_project, *steps, "--without", "circle-*", "--json")
+    assert out.returncode == 0, out.stderr
+    left = json.loads(out.stdout)
+    assert left["left_out"] == ["circle-walk"] and left["train"] == ["dance"]
+    assert not left["fit_validation"]
+    out = _run(smoke_project, *steps, "--fit-validation", "--json")
+    assert out.returncode == 0, out.stderr
+    fitted = json.loads(out.stdout)
+    assert fitted["fit_validation"] and fitted["left_out"] == []
+    for result in (left, fitted):
+        (motion,) = result["splits"]["validation"]
+        assert result["runs"][0]["validation"]["motions"][motion]["mean_mm"] > 0
+    nothing = _run(smoke_project, "--without", "no-such-clip")
+    assert nothing.returncode == 2 and "matches no training motion" in nothing.stderr
+    everything = _run(smoke_project, "--without", "*")
+    assert everything.returncode == 2 and "leaves no training motion" in everything.stderr
