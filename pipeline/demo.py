@@ -37,20 +37,24 @@ from pipeline.stages.simulate import stage_simulate
 from pipeline.stages.videos import stage_videos
 
 #: Seconds per unit of work of each stage on the 2-core development machine, from the quick
-#: preset's run (``dng demo --out /tmp/q9``: its ``report.json`` ``stage_seconds`` divided by
-#: the units below). Only their ratios matter: the time left is the remaining work at the rate
-#: measured so far in this run.
+#: preset's run (``dng demo --out /tmp/q18``: its stage table divided by the units below; its
+#: Joint2Coarse stage from the rerun with today's network). Only their ratios matter once a
+#: stage has run: the time left is the remaining work at the rate measured so far in this run.
 _SECONDS_PER = {
-    "setup": 2.5,  # motions, garment, proxy: per stage
-    "sim_frame": 0.18,  # proxy simulation, per frame at 8 x 16 (0.155 at the old 2 x 16: 1.16x)
+    "motion": 0.26,  # the motions stage, per motion (7.2 s for 28)
+    "setup": 2.5,  # garment, proxy: per stage
+    # proxy simulation at 8 x 16, Chebyshev-accelerated: per clip (set-up, lead-in) and per frame
+    # (14 s for 100 frames, 19 s for 150, 34 s for 300)
+    "sim_clip": 4.0,
+    "sim_frame": 0.10,
     "embed_frame": 0.17,  # the detailed target embedded in the proxy's simulation, per frame
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
-    "gt_sample": 0.18,  # ground-truth renders per training sample (3 frames) at 128 px
-    "j2c_step": 0.024,  # Joint2Coarse, per optimisation step (its evaluation included)
-    "test_sample": 0.34,  # test-set ground truth per sample at 128 px
-    "render_step": 0.94,  # renderer step at 128 px, the baselines training beside it
-    "eval_sample": 0.14,  # evaluation per test sample and method (each proxy counts)
-    "video_frame": 0.27,  # videos, per frame of a test motion
+    "gt_sample": 0.14,  # ground-truth renders per training sample (3 frames) at 128 px
+    "j2c_step": 0.0196,  # Joint2Coarse, per step of the paper's model (ours trains beside it)
+    "test_sample": 0.22,  # test-set ground truth per sample at 128 px
+    "render_step": 0.79,  # renderer step at 128 px, the baselines training beside it
+    "eval_sample": 0.09,  # evaluation per test sample and method (each proxy counts)
+    "video_frame": 0.19,  # videos, per frame of a test motion
 }
 
 
@@ -63,14 +67,20 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     c = _SECONDS_PER
     tests = available_test_motions(config)
     pixels = (config.image_size / 128) ** 2
-    sim = c["sim_frame"] * config.sim_substeps * config.sim_iterations / (8 * 16)
+    per_frame = c["sim_frame"] * config.sim_substeps * config.sim_iterations / (8 * 16)
+
+    def sim(frames: int) -> float:
+        return c["sim_clip"] + per_frame * frames
+
     target = c["embed_frame"] if config.target_mode == "embed" else c["target_frame"]
-    costs = [c["setup"]] * 3
-    costs += [sim * config.train_motion.frames]
+    motions = [config.train_motion, *available_extra_motions(config)]
+    motions += [*available_validation_motions(config), *tests]
+    costs = [c["motion"] * len(motions)] + [c["setup"]] * 2
+    costs += [sim(config.train_motion.frames)]
     costs += [target * config.train_motion.frames] if config.simulate_target else []
-    costs += [sim * m.frames for m in available_extra_motions(config)]
-    costs += [sim * m.frames for m in available_validation_motions(config)]
-    costs += [sim * m.frames for m in tests]
+    costs += [sim(m.frames) for m in available_extra_motions(config)]
+    costs += [sim(m.frames) for m in available_validation_motions(config)]
+    costs += [sim(m.frames) for m in tests]
     if config.simulate_target:
         costs += [target * m.frames for m in tests]
         train_samples = -(-config.train_motion.frames // config.frame_stride)
