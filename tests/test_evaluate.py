@@ -105,6 +105,8 @@ def test_eval_cli_on_the_smoke_project(smoke_project, tmp_path):
     for name in ("ours", "ours (simulated proxy)", "pix2pix", "dnr", "dnr-gan"):
         assert name in r.stdout
     assert "garment-region MSE ours / DNR, on Joint2Coarse's proxy:" in r.stdout
+    p_lines = r.stdout.split("protocol P (dance, the training motion, unseen cameras):\n")[1]
+    assert p_lines.startswith("  garment-region MSE ours / DNR, on Joint2Coarse's proxy:")
     report = json.loads((project / "eval" / "report.json").read_text())
     assert report["test_motions"] == ["twirl", "cmu-01_01"]
     for name, m in report["methods"].items():

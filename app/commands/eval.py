@@ -94,6 +94,21 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_ratios(methods: dict, indent: str) -> None:
+    """Ours / DNR (``ours_to_dnr``, from the methods' figures: an eval report reused from before
+    the garment-region ratios has them too): the garment region first, then full frame, on
+    Joint2Coarse's proxy and on the simulated one."""
+    ratios = ours_to_dnr(methods)
+    for metric, what in (("mse_masked", "garment-region MSE"), ("mse", "MSE")):
+        for suffix, proxy in (
+            ("", "Joint2Coarse's proxy"),
+            ("_simulated_proxy", "the simulated proxy"),
+        ):
+            key = f"{metric}_ratio_ours_to_dnr{suffix}"
+            if key in ratios:
+                print(f"{indent}{what} ours / DNR, on {proxy}: {ratios[key]:.2f}")
+
+
 def run_renderers(args: argparse.Namespace) -> int:
 
     project = Project(args.project)
@@ -131,21 +146,10 @@ def run_renderers(args: argparse.Namespace) -> int:
             f"{m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} {m['ssim']['mean']:7.4f} "
             f"{m['flicker']['mean']:8.4f}"
         )
-    ratios = ours_to_dnr(report["methods"])
-    for metric, what in (("mse_masked", "garment-region MSE"), ("mse", "MSE")):
-        for suffix, proxy in (
-            ("", "Joint2Coarse's proxy"),
-            ("_simulated_proxy", "the simulated proxy"),
-        ):
-            key = f"{metric}_ratio_ours_to_dnr{suffix}"
-            if key in ratios:
-                print(f"{what} ours / DNR, on {proxy}: {ratios[key]:.2f}")
+    _print_ratios(report["methods"], "")
     p = report.get("protocol_p")
-    if p and "mse_ratio_ours_to_dnr" in p:
-        print(
-            f"protocol P ({p['motion']}, the training motion, unseen cameras): MSE ours "
-            f"{p['methods']['ours']['mse']['mean']:.4f}, ours / DNR "
-            f"{p['mse_ratio_ours_to_dnr']:.2f} on Joint2Coarse's proxy"
-        )
+    if p:
+        print(f"protocol P ({p['motion']}, the training motion, unseen cameras):")
+        _print_ratios(p["methods"], "  ")
     print(f"report: {project.path('eval', 'report.json')}")
     return 0
