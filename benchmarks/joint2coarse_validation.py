@@ -43,6 +43,7 @@ from training.joint2coarse import (
     train_joint2coarse,
     vertex_errors,
 )
+from training.joint2coarse.augment import mirror_map
 from training.joint2coarse.body_model import body_rig
 
 
@@ -91,10 +92,13 @@ def main() -> None:
     clips = [_clip(project, name) for name in splits["train"]]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
-    rig = None
+    rig = mirror = None
+    proxy_file = project.path("proxy", "positions.obj")
     if cfg.model == "ours":
-        rest = load_mesh(project.path("proxy", "positions.obj"))[0].vertices
-        rig = body_rig(config.body, rest, cfg.skin_fade)
+        rig = body_rig(config.body, load_mesh(proxy_file)[0].vertices, cfg.skin_fade)
+    if cfg.mirror:
+        rest = load_mesh(proxy_file)[0]
+        mirror = mirror_map(rest.vertices, rest.faces, str(proxy_file))
     scored = {"validation": splits["validation"]}
     if args.test:
         scored["test"] = splits["test"]
@@ -108,7 +112,7 @@ def main() -> None:
         run_cfg = replace(cfg, seed=seed)
         with tempfile.TemporaryDirectory() as tmp:
             start = time.perf_counter()
-            result = train_joint2coarse(clips, tmp, run_cfg, progress=False, rig=rig)
+            result = train_joint2coarse(clips, tmp, run_cfg, progress=False, rig=rig, mirror=mirror)
             train_s = time.perf_counter() - start
         run = {"seed": seed, "train_s": train_s}
         for split, names in scored.items():

@@ -1,5 +1,6 @@
 """``benchmarks/joint2coarse_validation.py``: the figures Joint2Coarse's choices are made on,
-with training clips left out (``--without``) and fitted on validation (``--fit-validation``)."""
+with training clips left out (``--without``), fitted on validation (``--fit-validation``) and
+mirrored (``--set mirror=true``)."""
 
 from __future__ import annotations
 
@@ -38,6 +39,12 @@ def test_without_and_fit_validation(smoke_project):
     for result in (left, fitted):
         (motion,) = result["splits"]["validation"]
         assert result["runs"][0]["validation"]["motions"][motion]["mean_mm"] > 0
+    # mirrored training clips: the smoke project's proxy is symmetric enough for its map
+    out = _run(smoke_project, *steps, "--set", "mirror=true", "--json")
+    assert out.returncode == 0, out.stderr
+    mirrored = json.loads(out.stdout)
+    assert mirrored["config"]["mirror"] is True
+    assert mirrored["runs"][0]["validation"]["mean_over_motions"]["mean_mm"] > 0
     nothing = _run(smoke_project, "--without", "no-such-clip")
     assert nothing.returncode == 2 and "matches no training motion" in nothing.stderr
     everything = _run(smoke_project, "--without", "*")

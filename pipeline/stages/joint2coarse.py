@@ -50,6 +50,7 @@ def stage_joint2coarse(
         predict_proxy,
         train_joint2coarse,
     )
+    from training.joint2coarse.augment import mirror_map
     from training.joint2coarse.body_model import body_rig
 
     torch.set_num_threads(config.torch_threads)
@@ -71,7 +72,7 @@ def stage_joint2coarse(
     if vals:
         params["validation"] = vals
     inputs = [*caches.values(), *motions]
-    if cfg.model == "ours":
+    if cfg.model == "ours" or cfg.mirror:
         inputs.append(proxy_file)
 
     def work(out: Path) -> list[str]:
@@ -81,10 +82,13 @@ def stage_joint2coarse(
             positions = load_cache(caches[name]).positions
             clips.append(Joint2CoarseClip(joints, root_rot, positions, name=name))
         joints, root_rot = clips[0].joints, clips[0].root_rotations
-        rig = None
+        rig = mirror = None
         if cfg.model == "ours":
             rig = body_rig(config.body, load_mesh(proxy_file)[0].vertices, cfg.skin_fade)
-        result = train_joint2coarse(clips, out, cfg, progress=progress, rig=rig)
+        if cfg.mirror:
+            rest = load_mesh(proxy_file)[0]
+            mirror = mirror_map(rest.vertices, rest.faces, str(proxy_file))
+        result = train_joint2coarse(clips, out, cfg, progress=progress, rig=rig, mirror=mirror)
         report = {
             "config": cfg.to_dict(),
             "model": cfg.model,
@@ -127,7 +131,9 @@ def stage_joint2coarse(
                 rest = load_mesh(proxy_file)[0].vertices
                 other_rig = body_rig(config.body, rest, other_cfg.skin_fade)
             folder = out / f"compare-{other}"
-            trained = train_joint2coarse(clips, folder, other_cfg, progress=progress, rig=other_rig)
+            trained = train_joint2coarse(
+                clips, folder, other_cfg, progress=progress, rig=other_rig, mirror=mirror
+            )
             report["compare"][other] = _compare_errors(project, trained.net, caches, vals, tests)
             outputs.append(f"compare-{other}/{trained.model_path.name}")
         write_json(out / "report.json", report)

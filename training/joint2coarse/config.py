@@ -57,6 +57,12 @@ class Joint2CoarseConfig(PlainConfig):
     residual_dropout: float = 0.1
     """``ours``: dropout after every hidden ReLU of the residual network (as
     ``residual_widths``: 0: 52.2 / 108, 0.2: 46.9 / 98)."""
+    mirror: bool = False
+    """Train on each training clip's left-right mirror too (:mod:`training.joint2coarse.augment`:
+    the simulation of the mirrored motion, for no simulation; refused for a garment that is not
+    symmetric). Both models. The quick preset sets it, chosen on its validation motions (mean
+    over them of the mean / p95 vertex error, mm, seeds 0 1 2; ``python
+    benchmarks/joint2coarse_validation.py P --set mirror=true --seeds 0 1 2``)."""
     skin_fade: float = 1.0
     """``ours``: how the skinning fades down the garment: a vertex at relative height h in the
     garment (1 at the top, 0 at the hem) keeps ``h ** skin_fade`` of the body's skinning
@@ -172,6 +178,8 @@ class Joint2CoarseConfig(PlainConfig):
             raise InputError(
                 f"joint2coarse config tilt_follow={self.tilt_follow!r} must be in [0, 1]"
             )
+        if not isinstance(self.mirror, bool):
+            raise InputError(f"joint2coarse config mirror={self.mirror!r} must be true or false")
         if self.model not in MODELS:
             raise InputError(
                 f"joint2coarse config model={self.model!r}: choose from {', '.join(MODELS)}"

@@ -205,12 +205,12 @@ def load_model(path: str | os.PathLike) -> Joint2CoarseNet:
 
 
 def stored_config(payload: dict, path: str | os.PathLike | None = None) -> Joint2CoarseConfig:
-    """The config of a saved payload; files from before ``output_basis`` or ``tilt_follow``
-    existed read them as 0 (what those files were trained with)."""
+    """The config of a saved payload; files from before ``output_basis``, ``tilt_follow`` or
+    ``mirror`` existed read them as 0 / false (what those files were trained with)."""
     data = payload.get("config")
     if not isinstance(data, dict):
         raise InputError("Joint2Coarse file has no config", path)
-    data = {"output_basis": 0, "tilt_follow": 0.0, **data}
+    data = {"output_basis": 0, "tilt_follow": 0.0, "mirror": False, **data}
     try:
         return Joint2CoarseConfig.from_dict(data)
     except (InputError, TypeError) as exc:

@@ -116,6 +116,16 @@ def skirt_from_joints(
     return from_root_frame(local, origin, heading).astype(np.float32)
 
 
+def skirt_faces(rings: int = 6, around: int = 20) -> np.ndarray:
+    """Triangles (2 (rings - 1) around, 3) int64 of :func:`skirt_from_joints`'s vertex grid
+    (vertex ``r * around + k``: ring r, angle k), two per quad, closed around."""
+    r, k = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
+    a, b = r * around + k, r * around + (k + 1) % around
+    c, d = a + around, b + around
+    quads = np.stack([a, b, c, d], -1).reshape(-1, 4)
+    return np.concatenate([quads[:, [0, 2, 1]], quads[:, [1, 2, 3]]]).astype(np.int64)
+
+
 def synthetic_clip(num_frames: int, seed: int, rings: int = 6, around: int = 20):
     """``(joints, root_rotations, skirt)`` of :func:`synthetic_walk` and its skirt."""
     joints, root_rot = joint2coarse_inputs(synthetic_walk(num_frames, seed))

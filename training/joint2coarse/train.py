@@ -29,6 +29,7 @@ import torch
 from core.errors import InputError
 from core.fileio import atomic_path
 from training.csvlog import append_rows, truncate_rows
+from training.joint2coarse.augment import MirrorMap, mirror_motion
 from training.joint2coarse.body_model import fit_body_residual
 from training.joint2coarse.config import Joint2CoarseConfig
 from training.joint2coarse.descriptor import (
@@ -405,6 +406,29 @@ class _Trainer:
         self.truncate_log()
 
 
+def mirrored_clips(
+    clips: Sequence[Joint2CoarseClip], mirror: MirrorMap | None
+) -> list[Joint2CoarseClip]:
+    """``clips`` followed by each one's left-right mirror (:mod:`training.joint2coarse.augment`),
+    named ``NAME (mirrored)``."""
+    if mirror is None:
+        raise InputError(
+            "Joint2Coarse with mirror=true needs the proxy's mirror map (augment.mirror_map)"
+        )
+    out = list(clips)
+    for clip in clips:
+        if clip.proxy.shape[1] != len(mirror.corners):
+            raise InputError(
+                f"the mirror map has {len(mirror.corners)} vertices, the proxy cache "
+                f"{clip.proxy.shape[1]}",
+                clip.name or None,
+            )
+        joints, root_rotations = mirror_motion(clip.joints, clip.root_rotations)
+        proxy = mirror.reflect(clip.proxy).astype(np.float32)
+        out.append(Joint2CoarseClip(joints, root_rotations, proxy, f"{clip.name} (mirrored)"))
+    return out
+
+
 def train_joint2coarse(
     clips: Sequence[Joint2CoarseClip],
     out_dir: str | os.PathLike,
@@ -413,6 +437,7 @@ def train_joint2coarse(
     progress: bool = True,
     callback: Callable[[int, str, float], None] | None = None,
     rig: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    mirror: MirrorMap | None = None,
 ) -> Joint2CoarseTrainResult:
     """Train Joint2Coarse on (motion, proxy cache) pairs, resuming from ``out_dir`` if possible.
 
@@ -433,6 +458,9 @@ def train_joint2coarse(
     rig : (weights, rest_joints, rest_vertices), optional
         :func:`~training.joint2coarse.body_model.body_rig` of the proxy; required by
         ``config.model == "ours"`` (fitted in closed form: no steps, no checkpoint).
+    mirror : MirrorMap, optional
+        :func:`~training.joint2coarse.augment.mirror_map` of the proxy; required by
+        ``config.mirror``, which adds every clip's mirror (:func:`mirrored_clips`).
 
     Returns
     -------
@@ -445,6 +473,8 @@ def train_joint2coarse(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = config or Joint2CoarseConfig()
+    if cfg.mirror:
+        clips = mirrored_clips(clips, mirror)
     if cfg.model == "ours":
         return _train_ours(clips, out_dir, cfg, rig)
     data = prepare_data(clips, cfg)

@@ -1,0 +1,113 @@
+"""Joint2Coarse's mirrored training clips (``mirror=true``): the mirror map of a proxy, the
+mirrored motion, and that a mirrored clip is what the mirrored motion gives."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from core.body.shape import BodyShape, mannequin_skeleton
+from core.errors import InputError
+from tests.conftest import assert_close
+from training.joint2coarse import (
+    Joint2CoarseClip,
+    Joint2CoarseConfig,
+    predict_proxy,
+    train_joint2coarse,
+    vertex_errors,
+)
+from training.joint2coarse.augment import MIRROR_JOINTS, mirror_map, mirror_motion
+from training.joint2coarse.body_model import body_rig
+from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS, canonical_joint_order
+from training.joint2coarse.synthetic import skirt_faces, skirt_from_joints, synthetic_clip
+from training.joint2coarse.train import mirrored_clips
+
+
+def _rest_skirt() -> np.ndarray:
+    skel = mannequin_skeleton()
+    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
+    return skirt_from_joints(rest, np.eye(3)[None])[0]
+
+
+@pytest.fixture(scope="module")
+def skirt_map():
+    return mirror_map(_rest_skirt(), skirt_faces())
+
+
+def test_joints_swap_left_and_right():
+    names = JOINT2COARSE_JOINTS
+    for i, j in enumerate(MIRROR_JOINTS):
+        assert MIRROR_JOINTS[j] == i
+        assert names[j] == names[i].replace("Left", "#").replace("Right", "Left").replace(
+            "#", "Right"
+        )
+    assert names[MIRROR_JOINTS[names.index("LeftUpLeg")]] == "RightUpLeg"
+    assert MIRROR_JOINTS[names.index("Spine")] == names.index("Spine")
+
+
+def test_a_symmetric_proxy_maps_each_vertex_onto_its_partner(skirt_map):
+    rest = _rest_skirt().astype(np.float64)
+    assert skirt_map.asymmetry < 1e-5
+    # the skirt's vertex k of a ring sits at angle 2 pi k / 20: its mirror is vertex -k
+    assert_close(skirt_map.reflect(rest), rest, atol=1e-5)
+    ring, k = np.divmod(np.arange(len(rest)), 20)
+    partner = ring * 20 + (-k) % 20
+    picked = skirt_map.corners[np.arange(len(rest)), np.argmax(skirt_map.barycentric, 1)]
+    assert (picked == partner).all()
+    assert_close(skirt_map.barycentric.max(1), np.ones(len(rest)), atol=1e-5)
+
+
+def test_the_mirrored_clip_is_the_mirrored_motion_and_twice_is_the_clip(skirt_map):
+    """The synthetic skirt is a left-right symmetric function of the motion (like the physics):
+    the mirror of its clip must be the skirt of the mirrored motion."""
+    clip = Joint2CoarseClip(*synthetic_clip(90, 3), name="walk")
+    original, mirrored = mirrored_clips([clip], skirt_map)
+    assert original is clip and mirrored.name == "walk (mirrored)"
+    expected = skirt_from_joints(mirrored.joints, mirrored.root_rotations)
+    assert_close(mirrored.proxy, expected, atol=2e-4)
+    # the mirrored body is a body: bone lengths kept, the hips' line reversed
+    lengths = np.linalg.norm(clip.joints[:, 1:] - clip.joints[:, :1], axis=-1)
+    m_lengths = np.linalg.norm(mirrored.joints[:, 1:] - mirrored.joints[:, :1], axis=-1)
+    assert_close(m_lengths[:, [j - 1 for j in MIRROR_JOINTS[1:]]], lengths, atol=1e-5)
+    assert_close(np.linalg.det(mirrored.root_rotations), np.ones(90), atol=1e-5)
+    joints, rotations = mirror_motion(mirrored.joints, mirrored.root_rotations)
+    assert_close(joints, clip.joints, atol=1e-5)
+    assert_close(rotations, clip.root_rotations, atol=1e-6)
+    assert_close(skirt_map.reflect(mirrored.proxy), clip.proxy, atol=2e-4)
+
+
+def test_an_asymmetric_garment_is_refused():
+    rest = _rest_skirt().astype(np.float64)
+    lopsided = rest.copy()
+    lopsided[rest[:, 0] > 0.05, 0] += 0.2  # one side let out by 20 cm
+    with pytest.raises(InputError, match="not left-right symmetric") as info:
+        mirror_map(lopsided, skirt_faces(), "skirt.obj")
+    assert "skirt.obj" in str(info.value) and "mirror=false" in str(info.value)
+    with pytest.raises(InputError, match="vertices and"):
+        mirror_map(rest[:, :2], skirt_faces())
+
+
+def test_training_with_mirrors_needs_the_map_and_fits_the_mirrored_motion(skirt_map, tmp_path):
+    # the linear residual (closed form: fast)
+    config = Joint2CoarseConfig(model="ours", mirror=True, residual_widths=(), ridge=1e-4)
+    clip = Joint2CoarseClip(*synthetic_clip(240, 0), name="walk")
+    rig = body_rig(BodyShape(), _rest_skirt(), fade=1.0)
+    with pytest.raises(InputError, match="mirror map"):
+        train_joint2coarse([clip], tmp_path / "none", config, rig=rig)
+    small = mirror_map(_rest_skirt()[:40], skirt_faces(2, 20))
+    with pytest.raises(InputError, match="mirror map has 40 vertices") as info:
+        train_joint2coarse([clip], tmp_path / "wrong", config, rig=rig, mirror=small)
+    assert "walk" in str(info.value)
+    with_mirror = train_joint2coarse([clip], tmp_path / "on", config, rig=rig, mirror=skirt_map)
+    without = train_joint2coarse([clip], tmp_path / "off", replace(config, mirror=False), rig=rig)
+    # on the mirror of the training walk (seen by one model, not by the other)
+    seen = mirrored_clips([clip], skirt_map)[1]
+    errors = {
+        name: vertex_errors(predict_proxy(r.net, seen.joints, seen.root_rotations), seen.proxy)
+        for name, r in (("mirror", with_mirror), ("plain", without))
+    }
+    assert errors["mirror"].mean_mm < 0.25 * errors["plain"].mean_mm, errors
+    with pytest.raises(InputError, match="must be true or false"):
+        replace(config, mirror="yes")
