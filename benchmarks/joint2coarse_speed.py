@@ -1,11 +1,12 @@
 """Joint2Coarse inference speed on CPU: streaming latency per frame and batched throughput.
 
 Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600]
-[--threads 1 2] [--output-basis 256 0] [--model paper ours]``
+[--threads 1 2] [--output-basis 256 0] [--model paper ours] [--mirror]``
 
 Our model (``model=ours``: the proxy skinned to the body plus a residual network) is timed
 first, streaming and batched, on a synthetic skirt of ``--vertices`` with a random residual of
-the config's ``residual_widths`` (``--residual-widths``; none: the linear residual).
+the config's ``residual_widths`` (``--residual-widths``; none: the linear residual); with
+``--mirror``, as trained with mirrored clips: it predicts symmetrically (two passes a frame).
 
 Times the paper-sized network (widths at full size for 2048+ vertices) with random weights
 (speed does not depend on what the weights are) and output frames that follow the hips' tilt
@@ -38,11 +39,17 @@ from training.joint2coarse import (
     predict_proxy,
     train_joint2coarse,
 )
+from training.joint2coarse.augment import mirror_map
 from training.joint2coarse.body_model import BodyResidualModel, body_rig, motion_features
 from training.joint2coarse.config import MODELS
 from training.joint2coarse.descriptor import canonical_joint_order, joint2coarse_inputs
 from training.joint2coarse.model import Joint2CoarseNet
-from training.joint2coarse.synthetic import skirt_from_joints, synthetic_clip, synthetic_walk
+from training.joint2coarse.synthetic import (
+    skirt_faces,
+    skirt_from_joints,
+    synthetic_clip,
+    synthetic_walk,
+)
 
 #: Streaming latency target of issue #6 (milliseconds per frame, median, 1 thread).
 TARGET_MS = 2.0
@@ -107,6 +114,11 @@ def main() -> None:
         help="ours: hidden widths of the residual (none given: linear); default: the config's",
     )  # fmt: skip
     parser.add_argument(
+        "--mirror", action="store_true",
+        help="ours: trained with mirrored clips (mirror=true), so it predicts symmetrically: "
+        "the motion and its mirror each frame",
+    )  # fmt: skip
+    parser.add_argument(
         "--train-steps", type=int, default=20,
         help="also time this many training steps per stage (0: skip)",
     )  # fmt: skip
@@ -121,11 +133,12 @@ def main() -> None:
     print(f"{_load()} before; torch {torch.__version__}, {args.frames} frames per measurement")
     verdict = None
     if "ours" in args.model:
-        net = _ours(base, args.vertices)
+        net = _ours(base, args.vertices, args.mirror)
         print(
             f"== model=ours: Vc={net.n_vertices}, descriptor {net.descriptor_dim}, "
             f"{len(net.arrays['feat_mean'])} residual features, hidden widths "
             f"{base.residual_widths or 'none (linear)'}"
+            + (", symmetric (mirror=true)" if args.mirror else "")
         )
         for threads in args.threads:
             torch.set_num_threads(threads)
@@ -184,9 +197,10 @@ def main() -> None:
             )
 
 
-def _ours(base: Joint2CoarseConfig, n_vertices: int) -> BodyResidualModel:
+def _ours(base: Joint2CoarseConfig, n_vertices: int, mirror: bool) -> BodyResidualModel:
     """Our model for a synthetic skirt of about ``n_vertices`` vertices, with a random residual
-    of the config's ``residual_widths`` (speed does not depend on its values)."""
+    of the config's ``residual_widths`` (speed does not depend on its values); with ``mirror``,
+    the skirt's mirror map (the symmetric prediction)."""
     around = 100
     rings = max(2, round(n_vertices / around))
     skel = mannequin_skeleton()
@@ -206,6 +220,10 @@ def _ours(base: Joint2CoarseConfig, n_vertices: int) -> BodyResidualModel:
         arrays[f"hidden{i}"] = rng.normal(0.0, width**-0.5, (width, w)).astype(np.float32)
         width = w + 1
     arrays["coef"] = rng.normal(0.0, 1e-3, (width, 3 * len(skirt))).astype(np.float32)
+    if mirror:
+        m = mirror_map(skirt, skirt_faces(rings, around))
+        arrays["mirror_corners"], arrays["mirror_barycentric"] = m.corners, m.barycentric
+        config = replace(config, mirror=True)
     return BodyResidualModel(config, d, arrays)
 
 

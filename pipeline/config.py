@@ -301,10 +301,18 @@ PRESETS: dict[str, PipelineConfig] = {
         # seeds 0 to 5, python benchmarks/joint2coarse_validation.py P --set model=ours --seeds
         # 0 1 2 3 4 5 --set KEY=VALUE): (256, 256) at 3000 steps 34.9 / 76, (128, 128) 34.4 /
         # 75, 6000 steps 34.3 / 75, both 34.0 / 74 (better on 5 of the 6 seeds).
+        # It trains on every clip's left-right mirror too and predicts symmetrically (mirror),
+        # with more of the body's skinning down the skirt (skin_fade 0.5), chosen the same way
+        # (seeds 0 to 5): mirror 28.8 / 64, with skin_fade 0.5 28.2 / 62. Mirrored clips
+        # alone, before the symmetric prediction (seeds 0 to 2, at 35b3719): 30.5 / 68; skin_fade
+        # 0, 0.25, 0.5, 2: 29.5 / 65, 29.7 / 65, 29.0 / 64, 30.9 / 69; residual_dropout 0.05,
+        # 0.2: 30.6 / 67, 30.2 / 67; residual_basis 64: 30.3 / 67; window 50: 30.5 / 68.
         joint2coarse_overrides={
             "model": "ours",
             "residual_widths": [128, 128],
             "residual_steps": 6000,
+            "mirror": True,
+            "skin_fade": 0.5,
         },
         joint2coarse_compare=("paper", "ours"),
     ),

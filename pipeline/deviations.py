@@ -179,6 +179,15 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             f"chosen on validation clips ({len(config.joint2coarse_validation)})",
             "one dance does not generalise to unseen motions",
         )
+    if j.mirror:
+        symmetric = "; ours predicts the mean of its prediction and the mirror's, reflected"
+        add(
+            "Joint2Coarse",
+            "trained on the simulated clips as they are",
+            "each clip's left-right mirror added (the mirrored motion's simulation, for none)"
+            + (symmetric if j.model == "ours" else ""),
+            "chosen on the validation clips",
+        )
     if j.model == "ours":
         add(
             "Joint2Coarse",

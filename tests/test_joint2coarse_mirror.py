@@ -1,5 +1,6 @@
 """Joint2Coarse's mirrored training clips (``mirror=true``): the mirror map of a proxy, the
-mirrored motion, and that a mirrored clip is what the mirrored motion gives."""
+mirrored motion, that a mirrored clip is what the mirrored motion gives, and our model's
+symmetric prediction (numpy, torch, saved, streamed)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import torch
 
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.errors import InputError
@@ -14,11 +16,19 @@ from tests.conftest import assert_close
 from training.joint2coarse import (
     Joint2CoarseClip,
     Joint2CoarseConfig,
+    Joint2CoarseStream,
+    load_model,
+    motion_descriptors,
     predict_proxy,
     train_joint2coarse,
     vertex_errors,
 )
-from training.joint2coarse.augment import MIRROR_JOINTS, mirror_map, mirror_motion
+from training.joint2coarse.augment import (
+    MIRROR_JOINTS,
+    mirror_descriptors,
+    mirror_map,
+    mirror_motion,
+)
 from training.joint2coarse.body_model import body_rig
 from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS, canonical_joint_order
 from training.joint2coarse.synthetic import skirt_faces, skirt_from_joints, synthetic_clip
@@ -111,3 +121,53 @@ def test_training_with_mirrors_needs_the_map_and_fits_the_mirrored_motion(skirt_
     assert errors["mirror"].mean_mm < 0.25 * errors["plain"].mean_mm, errors
     with pytest.raises(InputError, match="must be true or false"):
         replace(config, mirror="yes")
+
+
+def test_mirrored_descriptors_are_the_mirrored_motions():
+    clip = Joint2CoarseClip(*synthetic_clip(60, 5), name="walk")
+    config = Joint2CoarseConfig()
+    desc = motion_descriptors(clip.joints, clip.root_rotations, config.window, config.stride)[0]
+    joints, rotations = mirror_motion(clip.joints, clip.root_rotations)
+    expected = motion_descriptors(joints, rotations, config.window, config.stride)[0]
+    assert_close(mirror_descriptors(desc, config.num_samples), expected, atol=1e-5)
+    as_torch = mirror_descriptors(torch.from_numpy(desc), config.num_samples).numpy()
+    assert_close(as_torch, expected, atol=1e-5, what="torch")
+
+
+@pytest.fixture(scope="module")
+def symmetric(skirt_map, tmp_path_factory):
+    """Ours trained with mirrors on the synthetic walk (the network: its torch path too)."""
+    config = Joint2CoarseConfig(model="ours", mirror=True, residual_steps=300)
+    clip = Joint2CoarseClip(*synthetic_clip(120, 0), name="walk")
+    rig = body_rig(BodyShape(), _rest_skirt(), fade=1.0)
+    out = tmp_path_factory.mktemp("symmetric")
+    return train_joint2coarse([clip], out, config, rig=rig, mirror=skirt_map), config
+
+
+def test_ours_with_mirrors_predicts_symmetrically_everywhere(symmetric, skirt_map, tmp_path):
+    """On a symmetric proxy the prediction for the mirrored motion is the reflected prediction;
+    numpy, torch, the saved file and the stream agree; a file whose mirror map does not fit
+    its proxy is refused, naming it."""
+    result, config = symmetric
+    clip = Joint2CoarseClip(*synthetic_clip(60, 7), name="unseen")
+    pred = predict_proxy(result.net, clip.joints, clip.root_rotations)
+    other = predict_proxy(result.net, *mirror_motion(clip.joints, clip.root_rotations))
+    assert_close(skirt_map.reflect(other), pred, atol=1e-4, what="symmetry")
+    desc = motion_descriptors(clip.joints, clip.root_rotations, config.window, config.stride)[0]
+    with torch.no_grad():
+        out = result.net.to_torch()(torch.from_numpy(desc)).numpy()
+    assert_close(out, result.net.predict(desc), atol=1e-5, what="torch vs numpy")
+    loaded = load_model(result.model_path)
+    assert loaded.config.mirror and "mirror_corners" in loaded.params()
+    assert_close(predict_proxy(loaded, clip.joints, clip.root_rotations), pred, what="reload")
+    stream = Joint2CoarseStream(loaded)
+    for t in range(20):
+        frame = stream.push(clip.joints[t], clip.root_rotations[t])
+        assert_close(frame, pred[t], atol=1e-4, what=f"stream frame {t}")
+    payload = torch.load(result.model_path, weights_only=False)
+    payload["state_dict"]["mirror_corners"] = payload["state_dict"]["mirror_corners"] + 1e6
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    with pytest.raises(InputError, match="mirror map") as err:
+        load_model(bad)
+    assert str(bad) in str(err.value)

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from core.errors import InputError
 from core.proxy.metrics import correspond
@@ -36,6 +37,9 @@ MIRROR_JOINTS = tuple(
     )
     for n in JOINT2COARSE_JOINTS
 )
+
+#: The same over the descriptor's 19 joints (the root is its origin).
+_MIRROR_DESCRIPTOR_JOINTS = tuple(j - 1 for j in MIRROR_JOINTS[1:])
 
 
 @dataclass(frozen=True)
@@ -59,7 +63,31 @@ class MirrorMap:
     def reflect(self, positions: np.ndarray) -> np.ndarray:
         """Proxy positions (..., V, 3) -> their mirror (..., V, 3) float64, vertex for vertex."""
         x = np.asarray(positions, np.float64)
-        return np.einsum("vk,...vkj->...vj", self.barycentric, x[..., self.corners, :]) @ MIRROR
+        return reflect_positions(x, self.corners, self.barycentric)
+
+
+def _negate_x(x):
+    """(..., 3) -> the same with x negated (numpy or torch)."""
+    lib = torch if isinstance(x, torch.Tensor) else np
+    return lib.concatenate([-x[..., :1], x[..., 1:]], -1)
+
+
+def reflect_positions(positions, corners, barycentric):
+    """:meth:`MirrorMap.reflect` for numpy arrays or torch tensors (of one kind, on one device):
+    positions (..., V, 3), corners (V, 3) int, barycentric (V, 3) of positions' dtype ->
+    (..., V, 3)."""
+    lib = torch if isinstance(positions, torch.Tensor) else np
+    return _negate_x(lib.einsum("vk,...vkj->...vj", barycentric, positions[..., corners, :]))
+
+
+def mirror_descriptors(desc, num_samples: int):
+    """Motion descriptors (B, K * 57) of a motion -> those of its mirror (numpy or torch).
+
+    A descriptor holds root-relative joints in the heading frame; the mirrored motion's heading
+    is the mirror of the original's, so its descriptor is the original's with x negated and left
+    and right swapped (:func:`mirror_motion`, in the heading frame)."""
+    x = desc.reshape(len(desc), num_samples, 19, 3)[:, :, list(_MIRROR_DESCRIPTOR_JOINTS)]
+    return _negate_x(x).reshape(len(desc), -1)
 
 
 def mirror_map(rest_vertices: np.ndarray, faces: np.ndarray, source: str = "") -> MirrorMap:

@@ -40,6 +40,7 @@ import torch
 from core.body.mannequin import make_body
 from core.body.shape import BodyShape
 from core.errors import InputError
+from training.joint2coarse.augment import MirrorMap, mirror_descriptors, reflect_positions
 from training.joint2coarse.config import Joint2CoarseConfig
 from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS
 
@@ -298,7 +299,9 @@ def residual_hidden(x, layers: list):
 
 def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
     """Our prediction: the base plus the residual, turned from the hips' frame into the heading
-    frame.
+    frame; for a model trained with mirrored clips (``mirror_corners`` in params), the mean of
+    that and the reflected prediction for the mirrored motion (so the model is left-right
+    symmetric, as the physics is).
 
     Parameters
     ----------
@@ -306,13 +309,27 @@ def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
     params : ``rest_joints`` (20, 3), ``feat_mean``, ``feat_std`` (F,), the hidden layers
         ``hidden0``, ``hidden1``, ... (F + 1, H0), (H0 + 1, H1), ... (none for the linear
         residual) and ``coef`` (H + 1, V * 3) float32 (:class:`BodyResidualModel`'s arrays),
-        ``used`` (S,) int and ``skin`` (V, 4 S) float32 (:func:`skin_matrix`)
-        numpy arrays, or torch tensors on desc's device: the computation runs in their library.
+        ``used`` (S,) int and ``skin`` (V, 4 S) float32 (:func:`skin_matrix`), optionally
+        ``mirror_corners`` (V, 3) int and ``mirror_barycentric`` (V, 3) float32
+        (:class:`~training.joint2coarse.augment.MirrorMap`): numpy arrays, or torch tensors on
+        desc's device: the computation runs in their library.
 
     Returns
     -------
     (B, V, 3) float32 heading-frame vertices.
     """
+    if "mirror_corners" not in params:
+        return _predict_once(desc, params, num_samples, clamp_z)
+    both = _xp(desc).concatenate([desc, mirror_descriptors(desc, num_samples)])  # one pass
+    out = _predict_once(both, params, num_samples, clamp_z)
+    back = reflect_positions(
+        out[len(desc) :], params["mirror_corners"], params["mirror_barycentric"]
+    )
+    return 0.5 * (out[: len(desc)] + back)
+
+
+def _predict_once(desc, params: dict, num_samples: int, clamp_z: float):
+    """:func:`predict_heading_frame` of one motion (no mirror)."""
     xp, p = _xp(desc), params
     desc = _as(desc, "float64")
     m = bone_transforms(desc[:, :57].reshape(-1, 19, 3), p["rest_joints"])
@@ -341,6 +358,10 @@ class BodyResidualModel:
         The residual network's hidden layers (:func:`residual_hidden`); none: linear.
     coef : (H + 1, V * 3)
         Residual = ``residual_hidden([clamp(z), 1]) @ coef``.
+    mirror_corners, mirror_barycentric : (V, 3), optional
+        The proxy's :class:`~training.joint2coarse.augment.MirrorMap` (corner indices stored
+        as float32) of a model trained with mirrored clips: it predicts symmetrically
+        (:func:`predict_heading_frame`).
     """
 
     def __init__(self, config: Joint2CoarseConfig, descriptor_dim: int, arrays: dict):
@@ -381,7 +402,11 @@ class BodyResidualModel:
         """The arrays :func:`predict_heading_frame` reads (numpy)."""
         used, skin = self.skin()
         names = ("rest_joints", "feat_mean", "feat_std", "coef", *hidden_names(self.arrays))
-        return {"used": used, "skin": skin, **{k: self.arrays[k] for k in names}}
+        out = {"used": used, "skin": skin, **{k: self.arrays[k] for k in names}}
+        if "mirror_corners" in self.arrays:  # stored as float32, exact for any proxy size
+            out["mirror_corners"] = self.arrays["mirror_corners"].astype(np.int64)
+            out["mirror_barycentric"] = self.arrays["mirror_barycentric"]
+        return out
 
     def predict(self, desc: np.ndarray) -> np.ndarray:
         """(B, D) float descriptors -> (B, V, 3) float32 heading-frame vertices
@@ -430,6 +455,7 @@ def fit_body_residual(
     desc: np.ndarray,
     verts: np.ndarray,
     rig: tuple[np.ndarray, np.ndarray, np.ndarray],
+    mirror: MirrorMap | None = None,
 ) -> BodyResidualModel:
     """Fit the residual: the network of ``config.residual_widths``
     (:func:`fit_residual_network`), or for no hidden layer, linearly in closed form (ridge).
@@ -439,6 +465,9 @@ def fit_body_residual(
     desc : (N, D) float32 training descriptors
     verts : (N, V * 3) float32 training proxies in the heading frame
     rig : :func:`body_rig`'s (weights, rest_joints, rest_vertices)
+    mirror : MirrorMap, optional
+        Kept in the model, which then predicts symmetrically (``config.mirror``: the training
+        frames hold every clip's mirror too).
     """
     weights, rest_joints, rest_vertices = rig
     if len(weights) * 3 != verts.shape[1]:
@@ -464,6 +493,9 @@ def fit_body_residual(
         reg[-1, -1] = 0.0  # the bias is not shrunk
         coef = np.linalg.solve(x.T @ x + reg, x.T @ y)
     model.arrays["coef"] = coef.astype(np.float32)
+    if mirror is not None:
+        model.arrays["mirror_corners"] = mirror.corners.astype(np.float32)
+        model.arrays["mirror_barycentric"] = mirror.barycentric.astype(np.float32)
     return model
 
 
@@ -543,7 +575,17 @@ def body_model_from_state(
     missing = [n for n in names if n not in state]
     if missing:
         raise InputError(f"Joint2Coarse model file lacks {missing}", path)
-    arrays = {n: state[n].numpy() for n in (*names, *hidden_names(state))}
+    mirror = ("mirror_corners", "mirror_barycentric")
+    optional = [n for n in mirror if n in state]
+    arrays = {n: state[n].numpy() for n in (*names, *hidden_names(state), *optional)}
+    if optional and (
+        len(optional) != 2
+        or any(arrays[n].shape != (len(arrays["weights"]), 3) for n in optional)
+        or not (
+            (arrays["mirror_corners"] >= 0) & (arrays["mirror_corners"] < len(arrays["weights"]))
+        ).all()
+    ):
+        raise InputError("Joint2Coarse model file's mirror map does not fit its proxy", path)
     n_features = motion_features(np.zeros((1, descriptor_dim)), config.num_samples).shape[1]
     if len(arrays["feat_mean"]) != n_features:
         raise InputError(

@@ -476,7 +476,7 @@ def train_joint2coarse(
     if cfg.mirror:
         clips = mirrored_clips(clips, mirror)
     if cfg.model == "ours":
-        return _train_ours(clips, out_dir, cfg, rig)
+        return _train_ours(clips, out_dir, cfg, rig, mirror)
     data = prepare_data(clips, cfg)
     # Our own RNG stream: initial weights, dropout and shuffling never touch the caller's.
     with torch.random.fork_rng(devices=[]):
@@ -545,14 +545,16 @@ def _train_ours(
     out_dir: Path,
     cfg: Joint2CoarseConfig,
     rig: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    mirror: MirrorMap | None,
 ) -> Joint2CoarseTrainResult:
-    """Fit our model (:func:`fit_body_residual`) on the heading-frame training frames; the log
+    """Fit our model (:func:`fit_body_residual`) on the heading-frame training frames (with
+    ``config.mirror``, the model keeps the mirror map and predicts symmetrically); the log
     gets one row with the held-out frames' error, its stage ``residual`` (the network) or
     ``ridge`` (the linear residual)."""
     if rig is None:
         raise InputError("our Joint2Coarse (model=ours) needs the proxy's body rig (body_rig)")
     data = prepare_data(clips, replace(cfg, tilt_follow=0.0))  # ours predicts in the heading frame
-    model = fit_body_residual(cfg, data.train_desc, data.train_verts, rig)
+    model = fit_body_residual(cfg, data.train_desc, data.train_verts, rig, mirror)
     model_path, log_path = out_dir / MODEL_NAME, out_dir / LOG_NAME
     save_model(model, model_path)
     errors, baseline = {}, None
