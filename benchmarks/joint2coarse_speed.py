@@ -31,7 +31,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.shape import BodyShape
 from training.joint2coarse import (
     Joint2CoarseClip,
     Joint2CoarseConfig,
@@ -42,14 +42,9 @@ from training.joint2coarse import (
 from training.joint2coarse.augment import mirror_map
 from training.joint2coarse.body_model import BodyResidualModel, body_rig, motion_features
 from training.joint2coarse.config import MODELS
-from training.joint2coarse.descriptor import canonical_joint_order, joint2coarse_inputs
+from training.joint2coarse.descriptor import joint2coarse_inputs
 from training.joint2coarse.model import Joint2CoarseNet
-from training.joint2coarse.synthetic import (
-    skirt_faces,
-    skirt_from_joints,
-    synthetic_clip,
-    synthetic_walk,
-)
+from training.joint2coarse.synthetic import rest_skirt, skirt_faces, synthetic_clip, synthetic_walk
 
 #: Streaming latency target of issue #6 (milliseconds per frame, median, 1 thread).
 TARGET_MS = 2.0
@@ -203,9 +198,7 @@ def _ours(base: Joint2CoarseConfig, n_vertices: int, mirror: bool) -> BodyResidu
     the skirt's mirror map (the symmetric prediction)."""
     around = 100
     rings = max(2, round(n_vertices / around))
-    skel = mannequin_skeleton()
-    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
-    skirt = skirt_from_joints(rest, np.eye(3)[None], rings, around)[0]
+    skirt = rest_skirt(rings, around)
     config = replace(base, model="ours")
     weights, rest_joints, rest_vertices = body_rig(BodyShape(), skirt, config.skin_fade)
     d = config.num_samples * 57

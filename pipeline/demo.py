@@ -38,7 +38,7 @@ from pipeline.stages.videos import stage_videos
 
 #: Seconds per unit of work of each stage on the 2-core development machine, from the quick
 #: preset's run (``dng demo --out /tmp/q18``: its stage table divided by the units below; its
-#: Joint2Coarse stage from the rerun with today's network). Only their ratios matter once a
+#: Joint2Coarse stage from a rerun with today's settings, /tmp/q19). Only their ratios matter once a
 #: stage has run: the time left is the remaining work at the rate measured so far in this run.
 _SECONDS_PER = {
     "motion": 0.26,  # the motions stage, per motion (7.2 s for 28)
@@ -50,7 +50,7 @@ _SECONDS_PER = {
     "embed_frame": 0.17,  # the detailed target embedded in the proxy's simulation, per frame
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
     "gt_sample": 0.14,  # ground-truth renders per training sample (3 frames) at 128 px
-    "j2c_step": 0.0196,  # Joint2Coarse, per step of the paper's model (ours trains beside it)
+    "j2c_step": 0.0223,  # Joint2Coarse, per step of the paper's model (ours trains beside it)
     "test_sample": 0.22,  # test-set ground truth per sample at 128 px
     "render_step": 0.79,  # renderer step at 128 px, the baselines training beside it
     "eval_sample": 0.09,  # evaluation per test sample and method (each proxy counts)

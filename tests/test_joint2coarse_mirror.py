@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from core.body.shape import BodyShape, mannequin_skeleton
+from core.body.shape import BodyShape
 from core.errors import InputError
 from tests.conftest import assert_close
 from training.joint2coarse import (
@@ -30,20 +30,19 @@ from training.joint2coarse.augment import (
     mirror_motion,
 )
 from training.joint2coarse.body_model import body_rig
-from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS, canonical_joint_order
-from training.joint2coarse.synthetic import skirt_faces, skirt_from_joints, synthetic_clip
+from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS
+from training.joint2coarse.synthetic import (
+    rest_skirt,
+    skirt_faces,
+    skirt_from_joints,
+    synthetic_clip,
+)
 from training.joint2coarse.train import mirrored_clips
-
-
-def _rest_skirt() -> np.ndarray:
-    skel = mannequin_skeleton()
-    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
-    return skirt_from_joints(rest, np.eye(3)[None])[0]
 
 
 @pytest.fixture(scope="module")
 def skirt_map():
-    return mirror_map(_rest_skirt(), skirt_faces())
+    return mirror_map(rest_skirt(), skirt_faces())
 
 
 def test_joints_swap_left_and_right():
@@ -58,7 +57,7 @@ def test_joints_swap_left_and_right():
 
 
 def test_a_symmetric_proxy_maps_each_vertex_onto_its_partner(skirt_map):
-    rest = _rest_skirt().astype(np.float64)
+    rest = rest_skirt().astype(np.float64)
     assert skirt_map.asymmetry < 1e-5
     # the skirt's vertex k of a ring sits at angle 2 pi k / 20: its mirror is vertex -k
     assert_close(skirt_map.reflect(rest), rest, atol=1e-5)
@@ -89,7 +88,7 @@ def test_the_mirrored_clip_is_the_mirrored_motion_and_twice_is_the_clip(skirt_ma
 
 
 def test_an_asymmetric_garment_is_refused():
-    rest = _rest_skirt().astype(np.float64)
+    rest = rest_skirt().astype(np.float64)
     lopsided = rest.copy()
     lopsided[rest[:, 0] > 0.05, 0] += 0.2  # one side let out by 20 cm
     with pytest.raises(InputError, match="not left-right symmetric") as info:
@@ -103,10 +102,10 @@ def test_training_with_mirrors_needs_the_map_and_fits_the_mirrored_motion(skirt_
     # the linear residual (closed form: fast)
     config = Joint2CoarseConfig(model="ours", mirror=True, residual_widths=(), ridge=1e-4)
     clip = Joint2CoarseClip(*synthetic_clip(240, 0), name="walk")
-    rig = body_rig(BodyShape(), _rest_skirt(), fade=1.0)
+    rig = body_rig(BodyShape(), rest_skirt(), fade=1.0)
     with pytest.raises(InputError, match="mirror map"):
         train_joint2coarse([clip], tmp_path / "none", config, rig=rig)
-    small = mirror_map(_rest_skirt()[:40], skirt_faces(2, 20))
+    small = mirror_map(rest_skirt()[:40], skirt_faces(2, 20))
     with pytest.raises(InputError, match="mirror map has 40 vertices") as info:
         train_joint2coarse([clip], tmp_path / "wrong", config, rig=rig, mirror=small)
     assert "walk" in str(info.value)
@@ -139,7 +138,7 @@ def symmetric(skirt_map, tmp_path_factory):
     """Ours trained with mirrors on the synthetic walk (the network: its torch path too)."""
     config = Joint2CoarseConfig(model="ours", mirror=True, residual_steps=300)
     clip = Joint2CoarseClip(*synthetic_clip(120, 0), name="walk")
-    rig = body_rig(BodyShape(), _rest_skirt(), fade=1.0)
+    rig = body_rig(BodyShape(), rest_skirt(), fade=1.0)
     out = tmp_path_factory.mktemp("symmetric")
     return train_joint2coarse([clip], out, config, rig=rig, mirror=skirt_map), config
 

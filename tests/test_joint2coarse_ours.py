@@ -30,22 +30,15 @@ from training.joint2coarse.body_model import (
     motion_features,
 )
 from training.joint2coarse.descriptor import canonical_joint_order
-from training.joint2coarse.synthetic import skirt_from_joints, synthetic_clip
+from training.joint2coarse.synthetic import rest_skirt, synthetic_clip
 
 OURS = Joint2CoarseConfig(model="ours", ridge=1e-4)
 LINEAR = replace(OURS, residual_widths=())
 
 
-def _rest_skirt() -> np.ndarray:
-    """The synthetic skirt in the rest pose, world (the rig's rest proxy)."""
-    skel = mannequin_skeleton()
-    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
-    return skirt_from_joints(rest, np.eye(3)[None])[0]
-
-
 @pytest.fixture(scope="module")
 def rig():
-    return body_rig(BodyShape(), _rest_skirt(), fade=1.0)
+    return body_rig(BodyShape(), rest_skirt(), fade=1.0)
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +53,7 @@ def trained(clips, rig, tmp_path_factory):
 
 def test_rig_weights_fade_from_the_body_to_the_hips(rig):
     weights, rest_joints, rest_vertices = rig
-    v = len(_rest_skirt())
+    v = len(rest_skirt())
     assert weights.shape == (v, 20) and rest_joints.shape == (20, 3)
     assert rest_vertices.shape == (v, 3)
     assert (weights >= 0).all() and np.allclose(weights.sum(1), 1.0, atol=1e-5)
@@ -69,7 +62,7 @@ def test_rig_weights_fade_from_the_body_to_the_hips(rig):
     hem = height <= height.min() + 1e-6
     assert_close(weights[hem, 0], np.ones(hem.sum()), atol=1e-6, what="hem follows the hips")
     # Fully skinned (fade 0): the hem takes the legs' weights too, never the arms'.
-    full = body_rig(BodyShape(), _rest_skirt(), fade=0.0)[0]
+    full = body_rig(BodyShape(), rest_skirt(), fade=0.0)[0]
     skel = mannequin_skeleton()
     names = canonical_joint_order(skel.rest_positions()[None], skel.names)  # order check only
     assert names.shape == (1, 20, 3)

@@ -14,6 +14,7 @@ from core.body.shape import MANNEQUIN_JOINTS, mannequin_skeleton
 from core.motion.motion import Motion
 from core.skeleton import rotation_about
 from training.joint2coarse.descriptor import (
+    canonical_joint_order,
     from_root_frame,
     heading_rotations,
     joint2coarse_inputs,
@@ -114,6 +115,14 @@ def skirt_from_joints(
         out[f] = p
     local = out.reshape(n, rings * around, 3)
     return from_root_frame(local, origin, heading).astype(np.float32)
+
+
+def rest_skirt(rings: int = 6, around: int = 20) -> np.ndarray:
+    """(rings * around, 3) float32: :func:`skirt_from_joints` on the mannequin's rest pose
+    (world), the rest proxy of a rig (``body_rig``) for the synthetic skirt."""
+    skel = mannequin_skeleton()
+    rest = canonical_joint_order(skel.rest_positions()[None], skel.names)
+    return skirt_from_joints(rest, np.eye(3)[None], rings, around)[0]
 
 
 def skirt_faces(rings: int = 6, around: int = 20) -> np.ndarray:
