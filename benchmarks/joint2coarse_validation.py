@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
+import sys
 import tempfile
 import time
 from dataclasses import asdict, replace
@@ -34,6 +35,7 @@ from core.mesh import load_mesh
 from core.project import Project
 from core.sim import load_cache
 from pipeline.config import joint2coarse_config, joint2coarse_splits, project_config
+from pipeline.stages.joint2coarse import mirror_setting
 from pipeline.stages.motions import load_project_motion
 from training.joint2coarse import (
     Joint2CoarseClip,
@@ -43,7 +45,6 @@ from training.joint2coarse import (
     train_joint2coarse,
     vertex_errors,
 )
-from training.joint2coarse.augment import mirror_map
 from training.joint2coarse.body_model import body_rig
 
 
@@ -92,13 +93,12 @@ def main() -> None:
     clips = [_clip(project, name) for name in splits["train"]]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
-    rig = mirror = None
+    rig = None
     proxy_file = project.path("proxy", "positions.obj")
     if cfg.model == "ours":
         rig = body_rig(config.body, load_mesh(proxy_file)[0].vertices, cfg.skin_fade)
-    if cfg.mirror:
-        rest = load_mesh(proxy_file)[0]
-        mirror = mirror_map(rest.vertices, rest.faces, str(proxy_file))
+    # as the project's stage trains (a garment that is not symmetric: no mirrors, said)
+    cfg, mirror, _ = mirror_setting(cfg, proxy_file, lambda line: print(line, file=sys.stderr))
     scored = {"validation": splits["validation"]}
     if args.test:
         scored["test"] = splits["test"]

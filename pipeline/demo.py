@@ -58,6 +58,20 @@ _SECONDS_PER = {
 }
 
 
+def _mirror_markdown(mirror: dict | None) -> str:
+    """The sentence the report gives the mirrored training clips (``mirror`` of Joint2Coarse's
+    report; "" when the setting is off)."""
+    if not mirror:
+        return ""
+    off = f"{mirror['asymmetry_mm']:.0f} mm of its {mirror['size_mm']:.0f} mm"
+    if mirror["used"]:
+        return f" Every training clip's left-right mirror too (the garment is symmetric to {off})."
+    return (
+        f" No mirrored clips: the garment is not left-right symmetric ({off}), though the "
+        "settings ask for them."
+    )
+
+
 def stage_costs(config: PipelineConfig) -> list[float]:
     """Expected seconds of every stage ``run_demo`` runs, in its order (for the time left).
 
@@ -575,7 +589,8 @@ def report_markdown(report: dict) -> str:
         "",
         f"Model: `{j.get('model', 'paper')}`. Trained on `{j['train_motion']}`"
         + "".join(f" and `{m}`" for m in j.get("extra_train_motions", []))
-        + "; held-out frames (validation) and unseen motions.",
+        + "; held-out frames (validation) and unseen motions."
+        + _mirror_markdown(j.get("mirror")),
         "",
         *_joint2coarse_splits_markdown(j),
         "| data | mean (mm) | p95 (mm) | max (mm) |",

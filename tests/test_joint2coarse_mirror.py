@@ -1,6 +1,7 @@
 """Joint2Coarse's mirrored training clips (``mirror=true``): the mirror map of a proxy, the
 mirrored motion, that a mirrored clip is what the mirrored motion gives, and our model's
-symmetric prediction (numpy, torch, saved, streamed)."""
+symmetric prediction (numpy, torch, saved, streamed), and the project stage's fallback for a
+garment that is not symmetric."""
 
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ import torch
 
 from core.body.shape import BodyShape
 from core.errors import InputError
+from core.mesh import Mesh, save_mesh
+from pipeline.demo import _mirror_markdown
+from pipeline.stages.joint2coarse import mirror_setting
 from tests.conftest import assert_close
 from training.joint2coarse import (
     Joint2CoarseClip,
@@ -87,15 +91,38 @@ def test_the_mirrored_clip_is_the_mirrored_motion_and_twice_is_the_clip(skirt_ma
     assert_close(skirt_map.reflect(mirrored.proxy), clip.proxy, atol=2e-4)
 
 
-def test_an_asymmetric_garment_is_refused():
+def test_an_asymmetric_garment_is_refused_and_the_stage_trains_without_mirrors(tmp_path):
+    """Training on the mirror of a lopsided garment is refused, naming the file; the project's
+    stage instead leaves the mirrors out, says so in its log, and its report says why."""
     rest = rest_skirt().astype(np.float64)
     lopsided = rest.copy()
     lopsided[rest[:, 0] > 0.05, 0] += 0.2  # one side let out by 20 cm
+    bad = mirror_map(lopsided, skirt_faces(), "skirt.obj")
+    assert not bad.symmetric and bad.asymmetry > 0.05 * bad.size
     with pytest.raises(InputError, match="not left-right symmetric") as info:
-        mirror_map(lopsided, skirt_faces(), "skirt.obj")
+        bad.check("skirt.obj")
     assert "skirt.obj" in str(info.value) and "mirror=false" in str(info.value)
+    clip = Joint2CoarseClip(*synthetic_clip(40, 0), name="walk")
+    with pytest.raises(InputError, match="not left-right symmetric"):
+        mirrored_clips([clip], bad)
     with pytest.raises(InputError, match="vertices and"):
         mirror_map(rest[:, :2], skirt_faces())
+
+    config = Joint2CoarseConfig(model="ours", mirror=True)
+    for vertices, symmetric in ((rest, True), (lopsided, False)):
+        path = tmp_path / f"proxy-{symmetric}.obj"
+        save_mesh(path, Mesh(vertices.astype(np.float32), skirt_faces()))
+        said: list[str] = []
+        run, mirror, report = mirror_setting(config, path, said.append)
+        assert run.mirror is symmetric and (mirror is not None) is symmetric
+        assert report["used"] is symmetric and report["size_mm"] > 500
+        assert ("not left-right symmetric" in " ".join(said)) is not symmetric
+        sentence = _mirror_markdown(report)
+        assert ("No mirrored clips" in sentence) is not symmetric
+    assert mirror_setting(replace(config, mirror=False), path) == (
+        replace(config, mirror=False), None, None,
+    )  # fmt: skip
+    assert _mirror_markdown(None) == ""
 
 
 def test_training_with_mirrors_needs_the_map_and_fits_the_mirrored_motion(skirt_map, tmp_path):

@@ -50,7 +50,6 @@ def stage_joint2coarse(
         predict_proxy,
         train_joint2coarse,
     )
-    from training.joint2coarse.augment import mirror_map
     from training.joint2coarse.body_model import body_rig
 
     torch.set_num_threads(config.torch_threads)
@@ -82,15 +81,14 @@ def stage_joint2coarse(
             positions = load_cache(caches[name]).positions
             clips.append(Joint2CoarseClip(joints, root_rot, positions, name=name))
         joints, root_rot = clips[0].joints, clips[0].root_rotations
-        rig = mirror = None
+        rig = None
         if cfg.model == "ours":
             rig = body_rig(config.body, load_mesh(proxy_file)[0].vertices, cfg.skin_fade)
-        if cfg.mirror:
-            rest = load_mesh(proxy_file)[0]
-            mirror = mirror_map(rest.vertices, rest.faces, str(proxy_file))
-        result = train_joint2coarse(clips, out, cfg, progress=progress, rig=rig, mirror=mirror)
+        run_cfg, mirror, symmetry = mirror_setting(cfg, proxy_file, log)
+        result = train_joint2coarse(clips, out, run_cfg, progress=progress, rig=rig, mirror=mirror)
         report = {
-            "config": cfg.to_dict(),
+            "config": run_cfg.to_dict(),
+            "mirror": symmetry,
             "model": cfg.model,
             "splits": splits,
             "train_motion": train,
@@ -125,7 +123,7 @@ def stage_joint2coarse(
             if other == cfg.model:
                 continue
             log(f"  the {other} model beside it, trained on the same splits")
-            other_cfg = replace(cfg, model=other)
+            other_cfg = replace(run_cfg, model=other)
             other_rig = rig
             if other == "ours" and rig is None:
                 rest = load_mesh(proxy_file)[0].vertices
@@ -146,6 +144,39 @@ def stage_joint2coarse(
     project.run_stage("joint2coarse", params, inputs, work, resumable=resumable)
 
     return json.loads(project.path("joint2coarse", "report.json").read_text())
+
+
+def mirror_setting(cfg, proxy_file: Path, log: Log = quiet) -> tuple:
+    """The config Joint2Coarse trains with, the proxy's mirror map and what the report says of
+    it. With ``cfg.mirror`` on a garment that is not left-right symmetric (a user's mesh), the
+    mirrored clips are left out, said in the log and the report, rather than the run failing at
+    its Joint2Coarse stage.
+
+    Returns
+    -------
+    (Joint2CoarseConfig, MirrorMap or None, dict or None): the dict (None without ``mirror``)
+    holds ``used`` and ``asymmetry_mm`` (the largest distance from a rest vertex's mirror image
+    to the rest proxy) and ``size_mm`` (its bounding-box diagonal).
+    """
+    from training.joint2coarse.augment import MAX_ASYMMETRY, mirror_map
+
+    if not cfg.mirror:
+        return cfg, None, None
+    rest = load_mesh(proxy_file)[0]
+    mirror = mirror_map(rest.vertices, rest.faces, str(proxy_file))
+    said = {
+        "used": mirror.symmetric,
+        "asymmetry_mm": 1000 * mirror.asymmetry,
+        "size_mm": 1000 * mirror.size,
+    }
+    if mirror.symmetric:
+        return cfg, mirror, said
+    log(
+        f"  the garment is not left-right symmetric ({said['asymmetry_mm']:.0f} mm off, over "
+        f"{100 * MAX_ASYMMETRY:.0f}% of its {said['size_mm']:.0f} mm): Joint2Coarse trains "
+        "without mirrored clips"
+    )
+    return replace(cfg, mirror=False), None, said
 
 
 def _compare_errors(project: Project, net, caches: dict, vals: list, tests: list) -> dict:

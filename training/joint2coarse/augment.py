@@ -54,11 +54,31 @@ class MirrorMap:
         Its barycentric coordinates in that face (rows sum to 1).
     asymmetry : float
         The largest distance (m) from a rest vertex's mirror image to the rest proxy.
+    size : float
+        The rest proxy's bounding-box diagonal (m).
     """
 
     corners: np.ndarray
     barycentric: np.ndarray
     asymmetry: float
+    size: float
+
+    @property
+    def symmetric(self) -> bool:
+        """Whether the garment is close enough to symmetric to train on its mirror
+        (:data:`MAX_ASYMMETRY`)."""
+        return self.asymmetry <= MAX_ASYMMETRY * self.size
+
+    def check(self, source: str = "") -> None:
+        """Raise :class:`InputError` unless :attr:`symmetric`: training on the mirror of a
+        garment that is not would teach another garment."""
+        if not self.symmetric:
+            raise InputError(
+                f"the garment is not left-right symmetric (a vertex's mirror image lies "
+                f"{1000 * self.asymmetry:.0f} mm from it, over {100 * MAX_ASYMMETRY:.0f}% of "
+                f"its {1000 * self.size:.0f} mm size): train Joint2Coarse with --set mirror=false",
+                source or None,
+            )
 
     def reflect(self, positions: np.ndarray) -> np.ndarray:
         """Proxy positions (..., V, 3) -> their mirror (..., V, 3) float64, vertex for vertex."""
@@ -99,8 +119,7 @@ def mirror_map(rest_vertices: np.ndarray, faces: np.ndarray, source: str = "") -
     faces : (F, 3) int
     source : str, named in the error
 
-    Raises :class:`InputError` when the rest proxy is too far from symmetric
-    (:data:`MAX_ASYMMETRY`): training on its mirror would teach another garment.
+    Any garment gets its map; :attr:`MirrorMap.symmetric` says whether it may be used.
     """
     v = np.asarray(rest_vertices, np.float64)
     f = np.asarray(faces, np.int64)
@@ -110,16 +129,8 @@ def mirror_map(rest_vertices: np.ndarray, faces: np.ndarray, source: str = "") -
             source or None,
         )
     c = correspond(v @ MIRROR, v, f)
-    asymmetry = float(c.distance.max())
-    diagonal = float(np.linalg.norm(v.max(0) - v.min(0)))
-    if asymmetry > MAX_ASYMMETRY * diagonal:
-        raise InputError(
-            f"the garment is not left-right symmetric (a vertex's mirror image lies "
-            f"{1000 * asymmetry:.0f} mm from it, over {100 * MAX_ASYMMETRY:.0f}% of its "
-            f"{1000 * diagonal:.0f} mm size): train Joint2Coarse with --set mirror=false",
-            source or None,
-        )
-    return MirrorMap(f[c.face], c.barycentric.astype(np.float64), asymmetry)
+    size = float(np.linalg.norm(v.max(0) - v.min(0)))
+    return MirrorMap(f[c.face], c.barycentric.astype(np.float64), float(c.distance.max()), size)
 
 
 def mirror_motion(joints: np.ndarray, root_rotations: np.ndarray) -> tuple[np.ndarray, ...]:

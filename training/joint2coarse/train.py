@@ -410,11 +410,13 @@ def mirrored_clips(
     clips: Sequence[Joint2CoarseClip], mirror: MirrorMap | None
 ) -> list[Joint2CoarseClip]:
     """``clips`` followed by each one's left-right mirror (:mod:`training.joint2coarse.augment`),
-    named ``NAME (mirrored)``."""
+    named ``NAME (mirrored)``; refused for a garment that is not symmetric
+    (:meth:`~training.joint2coarse.augment.MirrorMap.check`)."""
     if mirror is None:
         raise InputError(
             "Joint2Coarse with mirror=true needs the proxy's mirror map (augment.mirror_map)"
         )
+    mirror.check()
     out = list(clips)
     for clip in clips:
         if clip.proxy.shape[1] != len(mirror.corners):
