@@ -89,12 +89,18 @@ def ring_grid(heights: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.nd
     verts = np.stack(
         [radii * np.sin(a), np.broadcast_to(heights[:, None], radii.shape), radii * np.cos(a)], -1
     ).reshape(-1, 3)
+    return verts, ring_faces(rings, around)
+
+
+def ring_faces(rings: int, around: int) -> np.ndarray:
+    """The triangles of :func:`ring_grid`'s layout (vertex ``j * around + i``: ring j, angle i),
+    (2 (rings - 1) around, 3) int64: two per quad, ring by ring, closed around."""
     j, i = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
     p, q = j * around + i, j * around + (i + 1) % around
     faces = np.stack(
         [np.stack([p, p + around, q], -1), np.stack([q, p + around, q + around], -1)], -2
     )
-    return verts, faces.reshape(-1, 3).astype(np.int64)
+    return faces.reshape(-1, 3).astype(np.int64)
 
 
 def skirt_tube(

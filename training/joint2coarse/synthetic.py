@@ -12,6 +12,7 @@ import numpy as np
 
 from core.body.shape import MANNEQUIN_JOINTS, mannequin_skeleton
 from core.motion.motion import Motion
+from core.proxy.testing import ring_faces
 from core.skeleton import rotation_about
 from training.joint2coarse.descriptor import (
     canonical_joint_order,
@@ -126,13 +127,9 @@ def rest_skirt(rings: int = 6, around: int = 20) -> np.ndarray:
 
 
 def skirt_faces(rings: int = 6, around: int = 20) -> np.ndarray:
-    """Triangles (2 (rings - 1) around, 3) int64 of :func:`skirt_from_joints`'s vertex grid
-    (vertex ``r * around + k``: ring r, angle k), two per quad, closed around."""
-    r, k = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
-    a, b = r * around + k, r * around + (k + 1) % around
-    c, d = a + around, b + around
-    quads = np.stack([a, b, c, d], -1).reshape(-1, 4)
-    return np.concatenate([quads[:, [0, 2, 1]], quads[:, [1, 2, 3]]]).astype(np.int64)
+    """Triangles of :func:`skirt_from_joints`'s vertex grid (vertex ``r * around + k``: ring r,
+    angle k, rings going down): :func:`~core.proxy.testing.ring_faces`, outward."""
+    return ring_faces(rings, around)
 
 
 def synthetic_clip(num_frames: int, seed: int, rings: int = 6, around: int = 20):
