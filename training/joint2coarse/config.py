@@ -59,8 +59,8 @@ class Joint2CoarseConfig(PlainConfig):
     ``residual_widths``: 0: 52.2 / 108, 0.2: 46.9 / 98)."""
     mirror: bool = False
     """Train on each training clip's left-right mirror too (:mod:`training.joint2coarse.augment`:
-    the simulation of the mirrored motion, for no simulation; refused for a garment that is not
-    symmetric), both models; ours then also predicts symmetrically, as the mean of its
+    the simulation of the mirrored motion, for no simulation; a project's garment that is not
+    symmetric trains without, and its report says so), both models; ours then also predicts symmetrically, as the mean of its
     prediction and the reflected prediction for the mirrored motion (twice the work a frame).
     The quick preset sets it, chosen on its validation motions (mean over them of the mean /
     p95 vertex error, mm, seeds 0 to 5: 34.0 / 74 without, 28.8 / 64 with; ``python
