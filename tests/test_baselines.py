@@ -200,7 +200,7 @@ def test_load_for_evaluation_treats_our_renderer_the_same_way(tmp_path):
 
 
 def test_baseline_learning_rates_follow_the_schedule(data, tmp_path, monkeypatch):
-    import training.baselines.train as train_module
+    import training.adversarial as train_module  # the one trainer's step
 
     seen = []
     real = train_module.set_lr

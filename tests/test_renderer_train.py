@@ -122,11 +122,11 @@ class _Poisoned(torch.utils.data.Dataset):
 
 
 def test_nan_guard_skips_reports_and_counts(data, tmp_path, monkeypatch):
-    import training.renderer.train as tr
+    from training.adversarial import AdversarialTrainer
 
     cfg = TINY.replace(steps=6, log_every=3, preview_every=0)
     seen, untouched = [], []
-    orig = tr._Trainer.train_step
+    orig = AdversarialTrainer.train_step
 
     def step(self, batch):  # record whether a skipped step left the weights alone
         before = [p.detach().clone() for p in (*self.net.parameters(), *self.disc.parameters())]
@@ -136,7 +136,7 @@ def test_nan_guard_skips_reports_and_counts(data, tmp_path, monkeypatch):
             untouched.append(all(torch.equal(a, b) for a, b in zip(before, after)))
         return out
 
-    monkeypatch.setattr(tr._Trainer, "train_step", step)
+    monkeypatch.setattr(AdversarialTrainer, "train_step", step)
     res = train_renderer(
         _Poisoned(data, 3), tmp_path, cfg, progress=False, callback=lambda s, l: seen.append(l)
     )
@@ -233,7 +233,7 @@ def test_sigkill_mid_run_then_rerun_continues_to_the_same_weights(tmp_path):
 
 
 def test_learning_rates_follow_the_schedule(data, tmp_path, monkeypatch):
-    import training.renderer.train as train_module
+    import training.adversarial as train_module  # the one trainer's step
 
     seen = []
     real = train_module.set_lr

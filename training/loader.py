@@ -1,7 +1,7 @@
 """The order a trainer visits its samples in, and the batches it is fed, with or without
 DataLoader worker processes.
 
-Both trainers (:mod:`training.renderer.train`, :mod:`training.baselines.train`) shuffle the same
+The adversarial trainer (:mod:`training.adversarial`: the renderer, the baselines) shuffles this
 way: a permutation of the data set from a generator seeded by ``seed + 1``, consumed a global
 batch at a time, a fresh permutation when the rest is shorter than a batch. :class:`SampleOrder`
 is that state and :func:`next_indices` one step of it, a pure function; a checkpoint stores the

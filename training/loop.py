@@ -1,13 +1,14 @@
-"""The training loop both adversarial trainers run (the neural renderer's and the baselines'):
-one step per batch of the feed, a loss row every ``log_every`` steps, a resumable checkpoint
-every ``checkpoint_every``, optional previews, and the caller's callback after each step.
+"""The training loop the adversarial trainer runs (:mod:`training.adversarial`: the neural
+renderer's and every baseline's): one step per batch of the feed, a loss row every
+``log_every`` steps, a resumable checkpoint every ``checkpoint_every``, optional previews, and
+the caller's callback after each step.
 
-:class:`AdversarialRun` is the state both trainers keep and checkpoint the same way (the sample
-order, the step, skipped steps, loss sums between log rows, rows not yet written, the elapsed
-time), its loss row and the checks a resumed checkpoint must pass. A trainer subclasses it and
-brings only what differs: its networks, its step, its preview and what else its checkpoint
-holds. The loop owns the order of things, so both trainers log, skip, checkpoint and resume
-the same way.
+:class:`AdversarialRun` is the state a run keeps and checkpoints (the sample order, the step,
+skipped steps, loss sums between log rows, rows not yet written, the elapsed time), its loss
+row and the checks a resumed checkpoint must pass (:func:`read_checkpoint`, also Joint2Coarse's).
+:class:`training.adversarial.AdversarialTrainer` subclasses it with the networks, the step and
+the checkpoint's contents. The loop owns the order of things, so every method logs, skips,
+checkpoints and resumes the same way.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ class Trainer(Protocol):
 
 
 class AdversarialRun:
-    """What both adversarial trainers keep, log and checkpoint alike.
+    """What an adversarial run keeps, logs and checkpoints.
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 share of each step spent waiting for data.
 
 Each row trains the renderer of a preset (random initial weights) for a few steps with the
-studio's own training step (``training.renderer.train._Trainer.train_step``: generator,
+studio's own training step (``training.adversarial.AdversarialTrainer.train_step``: generator,
 temporal discriminator, L1, feature matching, GAN; the perceptual loss when its VGG file is
 there; ``--precision``, by default bf16 on CUDA and fp32 on the CPU), fed as the trainers are
 (``training.loader.batches``: a ``torch.utils.data.DataLoader`` with ``--workers`` processes and
@@ -88,16 +88,14 @@ def measure_one(
 
     from training.loader import batches
     from training.renderer import PRESETS
-    from training.renderer.train import _Trainer, collate_samples
+    from training.renderer.train import collate_samples, renderer_trainer
 
     cuda = str(device).startswith("cuda")
     dev = torch.device(device)
     config = replace(PRESETS[preset], batch_size=batch, precision=precision)
     n = batch * (steps + WARMUP)
     data = ShapeDataset(n, size, config.motion_channels)
-    trainer = _Trainer(
-        data, config, out_dir, device=dev, steps=steps + WARMUP, init_from=None, trainable="all"
-    )
+    trainer = renderer_trainer(data, config, out_dir, device=dev, steps=steps + WARMUP)
     feed = batches(
         data, trainer.order, steps + WARMUP, batch,
         functools.partial(collate_samples, motion_channels=config.motion_channels),

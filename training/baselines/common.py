@@ -269,6 +269,16 @@ class BaselineModel(nn.Module):
         """The model's own regulariser (unweighted scalar); zero by default."""
         return batch["target"].new_zeros(())
 
+    # The model is its own :class:`training.adversarial.Method`:
+
+    def generate(self, net: nn.Module, batch: dict) -> tuple[torch.Tensor, dict]:
+        """``net`` (this model, or its DistributedDataParallel wrapper) on a checked batch."""
+        return net(batch)
+
+    def target(self, batch: dict) -> torch.Tensor:
+        """The ground truth at frame t, (B, 3, H, W)."""
+        return batch["target"][:, CUR]
+
     def check(self, batch: dict, keys: Iterable[str] = ()) -> dict[str, torch.Tensor]:
         """:func:`check_batch` on ``required_keys`` (+ ``keys``), moved to the model's device,
         with a size divisible by the U-Net's stride."""

@@ -1,5 +1,6 @@
-"""The baselines' training loop: one loop for every kind, with atomic resumable checkpoints, a CSV
-loss log, a NaN/inf guard and the model file the evaluation loads.
+"""Training the baselines: each kind is a configuration of the one adversarial trainer
+(:mod:`training.adversarial`, the same step, schedule, guard, checkpoints and log as our
+renderer's), plus the model file the evaluation loads.
 
 One step: the generator renders frame t; with a discriminator, the discriminator's loss on
 (real, fake) inputs from :meth:`BaselineModel.disc_inputs` and the generator's loss
@@ -19,7 +20,6 @@ Benchmark: ``python -m training.baselines --bench [KIND ...]`` times training st
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import tempfile
 import time
@@ -29,20 +29,16 @@ from pathlib import Path
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 from tqdm.auto import tqdm
 
 from core.errors import InputError
 from core.fileio import atomic_path
+from training.adversarial import AdversarialTrainer, RunFiles, dataset_fingerprint
 from training.baselines.common import BaselineConfig, BaselineModel, RendererAdapter
 from training.baselines.dnr import DNR_GAN_PRESETS, DNR_PRESETS, DeferredNeuralRenderer, DNRConfig
 from training.baselines.pix2pix import PIX2PIX_PRESETS, Pix2Pix, Pix2PixConfig
-from training.csvlog import append_rows, truncate_rows
 from training.loader import batches
-from training.loop import AdversarialRun, read_checkpoint, run_steps
-from training.losses import feature_matching, gan_d_loss, gan_g_loss, load_perceptual
-from training.renderer.data import CUR
-from training.schedule import lr_scale, set_lr
+from training.loop import run_steps
 
 KINDS = ("pix2pix", "dnr", "dnr-gan")
 PRESETS: dict[str, dict[str, BaselineConfig]] = {
@@ -56,7 +52,6 @@ LOG_COLUMNS = (
     "step", "epoch", "loss_g", "l1", "perceptual", "fm", "gan_g", "extra", "loss_d", "skipped",
     "seconds",
 )  # fmt: skip
-_LOSSES = LOG_COLUMNS[2:9]
 
 
 def _check_kind(kind: str) -> None:
@@ -175,12 +170,6 @@ def load_for_evaluation(path: str | os.PathLike, device: str | torch.device = "c
     return load_baseline(path, device)
 
 
-def _dataset_fingerprint(dataset) -> str:
-    from training.renderer.train import dataset_fingerprint
-
-    return dataset_fingerprint(dataset)
-
-
 def collate_samples(samples: list[dict]) -> dict[str, torch.Tensor]:
     """Samples of the data set -> one batch (in a DataLoader worker when there are any)."""
     try:
@@ -189,156 +178,41 @@ def collate_samples(samples: list[dict]) -> dict[str, torch.Tensor]:
         raise InputError(f"data set items do not collate: {exc}") from None
 
 
-def _adam(params, lr: float, betas, device: torch.device) -> torch.optim.Adam:
-    """Adam, fused on CPU and CUDA (4x faster than the loop on a large neural texture)."""
-    return torch.optim.Adam(params, lr=lr, betas=tuple(betas), fused=device.type in ("cpu", "cuda"))
+def baseline_trainer(
+    kind: str, dataset, config: BaselineConfig, out_dir: Path, steps: int, device: torch.device
+) -> AdversarialTrainer:
+    """The :class:`training.adversarial.AdversarialTrainer` of a ``kind`` run: the model (its
+    own :class:`training.adversarial.Method`) and its discriminator seeded by ``config.seed``,
+    its files in ``out_dir``."""
+    torch.manual_seed(config.seed)
+    model = build_model(config).to(device)
+    files = RunFiles(
+        checkpoint=out_dir / f"{kind}_train.pt",
+        log=out_dir / f"{kind}_loss.csv",
+        log_columns=LOG_COLUMNS,
+        format=CHECKPOINT_FORMAT,
+        what="baseline",
+        identity=(
+            ("kind", kind, "another baseline"),
+            ("config", config.to_dict(), "a different config"),
+            ("fingerprint", dataset_fingerprint(dataset), "different training data"),
+            ("steps", steps, "a different step budget"),
+        ),
+    )
+    return AdversarialTrainer(
+        model, model.make_discriminator(), model, config, files,
+        n_samples=len(dataset), batch_size=config.batch_size, steps=steps, device=device,
+    )  # fmt: skip
 
 
-class _Trainer(AdversarialRun):
-    """The state of one run (so checkpoints capture all of it): the model, its discriminator
-    and optimisers here, the rest in :class:`training.loop.AdversarialRun`."""
-
-    def __init__(self, kind: str, dataset, config: BaselineConfig, out_dir: Path, steps: int,
-                 device: torch.device):  # fmt: skip
-        self.kind = kind
-        self.dataset = dataset
-        self.config = config
-        self.device = device
-        self.steps = steps
-        self.checkpoint_path = out_dir / f"{kind}_train.pt"
-        self.model_path = out_dir / f"{kind}.pt"
-        self.log_path = out_dir / f"{kind}_loss.csv"
-        if len(dataset) < config.batch_size:
-            raise InputError(
-                f"data set has {len(dataset)} samples, fewer than one batch ({config.batch_size})"
-            )
-        self.fingerprint = _dataset_fingerprint(dataset)
-        torch.manual_seed(config.seed)
-        self.model = build_model(config).to(device)
-        self.disc = self.model.make_discriminator()
-        self.opt_g = _adam(self.model.parameters(), config.lr_g, config.betas, device)
-        self.opt_d = None
-        if self.disc is not None:
-            self.disc.to(device)
-            self.opt_d = _adam(self.disc.parameters(), config.lr_d, config.betas, device)
-        self.perceptual = (
-            load_perceptual(config.vgg_path, config.vgg_channels)
-            if config.w_perceptual > 0
-            else None
-        )
-        if self.perceptual is not None:
-            self.perceptual.to(device)
-        super().__init__(len(dataset), config.seed, _LOSSES)
-
-    def feed(self, steps: int, workers: int = 0):
-        """The next ``steps`` checked batches and the sample order after each
-        (:func:`training.loader.batches`)."""
-        for item, order in batches(
-            self.dataset, self.order, steps, self.config.batch_size, collate_samples,
-            workers=workers, pin_memory=self.device.type == "cuda",
-        ):  # fmt: skip
-            yield self.model.check(item, ("target",)), order
-
-    def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float] | None:
-        """One step; the losses, or None when the guard skipped it."""
-        cfg = self.config
-        scale = lr_scale(self.step, self.steps, cfg.lr_decay_from)
-        set_lr(self.opt_g, cfg.lr_g * scale)
-        set_lr(self.opt_d, cfg.lr_d * scale)
-        self.model.train()
-        real_t = batch["target"][:, CUR]
-        fake, aux = self.model(batch)
-        self.opt_g.zero_grad(set_to_none=True)
-        zero = fake.new_zeros(())
-        loss_d, gan, fm = zero, zero, zero
-        if self.disc is not None:
-            self.disc.train()
-            self.opt_d.zero_grad(set_to_none=True)
-            real_in, fake_in = self.model.disc_inputs(batch, fake.detach())
-            logits, feats = self.disc(torch.cat([real_in, fake_in]))
-            # The real half's activations are those of the same (pre-update) discriminator
-            # that feature matching compares with: reused, not recomputed.
-            feats_r = [f[: len(real_in)].detach() for f in feats]
-            lr, lf = logits.chunk(2)
-            loss_d = gan_d_loss(lr, lf, cfg.gan_mode)
-            loss_d.backward()
-            for p in self.disc.parameters():
-                p.requires_grad_(False)
-            try:
-                _, fake_in = self.model.disc_inputs(batch, fake)
-                logits_f, feats_f = self.disc(fake_in)
-                gan = gan_g_loss(logits_f, cfg.gan_mode)
-                if cfg.w_fm > 0:
-                    fm = feature_matching(feats_f, feats_r)
-            finally:
-                for p in self.disc.parameters():
-                    p.requires_grad_(True)
-        l1 = F.l1_loss(fake, real_t)
-        perc = self.perceptual(fake, real_t) if self.perceptual is not None else zero
-        extra = self.model.extra_loss(batch, aux) if self.model.extra_weight > 0 else zero
-        loss_g = (
-            cfg.w_l1 * l1
-            + cfg.w_perceptual * perc
-            + cfg.w_fm * fm
-            + cfg.w_gan * gan
-            + self.model.extra_weight * extra
-        )
-        loss_g.backward()
-        params = list(self.model.parameters())
-        if self.disc is not None:
-            params += list(self.disc.parameters())
-        grads = [p.grad for p in params if p.grad is not None]
-        finite = bool(torch.isfinite(loss_g) & torch.isfinite(loss_d))
-        if finite and grads:
-            finite = bool(torch.stack([g.isfinite().all() for g in grads]).all())
-        if not finite:
-            self.opt_g.zero_grad(set_to_none=True)
-            if self.opt_d is not None:
-                self.opt_d.zero_grad(set_to_none=True)
-            return None
-        if self.opt_d is not None:
-            self.opt_d.step()
-        self.opt_g.step()
-        values = (loss_g, l1, perc, fm, gan, extra, loss_d)
-        return {k: float(v.detach()) for k, v in zip(_LOSSES, values)}
-
-    def off_losses(self) -> set[str]:
-        off = {"fm", "gan_g", "loss_d"} if self.disc is None else set()
-        return off | ({"perceptual"} if self.perceptual is None else set())
-
-    def save_checkpoint(self) -> None:
-        append_rows(self.log_path, LOG_COLUMNS, self.pending_rows)
-        self.pending_rows = []
-        payload = {
-            "format": CHECKPOINT_FORMAT,
-            "kind": self.kind,
-            "config": self.config.to_dict(),
-            "fingerprint": self.fingerprint,
-            "steps": self.steps,
-            "generator": self.model.state_dict(),
-            "discriminator": None if self.disc is None else self.disc.state_dict(),
-            "opt_g": self.opt_g.state_dict(),
-            "opt_d": None if self.opt_d is None else self.opt_d.state_dict(),
-            **self.run_state(),
-        }
-        with atomic_path(self.checkpoint_path) as tmp:
-            torch.save(payload, tmp)
-
-    def load_checkpoint(self) -> None:
-        payload = read_checkpoint(
-            self.checkpoint_path, CHECKPOINT_FORMAT, "baseline",
-            [("kind", self.kind, "another baseline"),
-             ("config", self.config.to_dict(), "a different config"),
-             ("fingerprint", self.fingerprint, "different training data"),
-             ("steps", self.steps, "a different step budget")],
-        )  # fmt: skip
-        self.model.load_state_dict(payload["generator"])
-        self.opt_g.load_state_dict(payload["opt_g"])
-        if self.disc is not None:
-            self.disc.load_state_dict(payload["discriminator"])
-            self.opt_d.load_state_dict(payload["opt_d"])
-        self.restore_run_state(payload)
-        truncate_rows(self.log_path, LOG_COLUMNS, self.step)
+def feed(tr: AdversarialTrainer, dataset, steps: int, workers: int = 0):
+    """The next ``steps`` checked batches of a baseline run and the sample order after each
+    (:func:`training.loader.batches`)."""
+    for item, order in batches(
+        dataset, tr.order, steps, tr.config.batch_size, collate_samples,
+        workers=workers, pin_memory=tr.device.type == "cuda",
+    ):  # fmt: skip
+        yield tr.net.check(item, ("target",)), order
 
 
 def train_baseline(
@@ -385,30 +259,27 @@ def train_baseline(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with torch.random.fork_rng(devices=[]):
-        tr = _Trainer(kind, dataset, cfg, out_dir, n_steps, torch.device(device))
-        if tr.checkpoint_path.is_file():
-            tr.load_checkpoint()
-        else:
-            with contextlib.suppress(FileNotFoundError):
-                tr.log_path.unlink()
+        tr = baseline_trainer(kind, dataset, cfg, out_dir, n_steps, torch.device(device))
+        tr.start()
         if cfg.w_perceptual > 0 and tr.perceptual is None and tr.step < n_steps:
             tqdm.write(f"{kind}: perceptual loss off (no VGG19 weights file in config.vgg_path)")
         with tqdm(total=n_steps, initial=tr.step, disable=not progress, desc=kind) as bar:
             run_steps(
-                tr, tr.feed(n_steps - tr.step, workers), n_steps, bar, name=kind,
+                tr, feed(tr, dataset, n_steps - tr.step, workers), n_steps, bar, name=kind,
                 log_every=cfg.log_every, checkpoint_every=cfg.checkpoint_every,
                 postfix=lambda m: {"g": f"{m['loss_g']:.4g}", "skipped": tr.skipped},
                 callback=callback, say=tqdm.write,
             )  # fmt: skip
-    tr.model.eval()
-    save_baseline(tr.model_path, tr.model)
+    tr.net.eval()
+    model_path = out_dir / f"{kind}.pt"
+    save_baseline(model_path, tr.net)
     return BaselineTrainResult(
         kind=kind,
-        model=tr.model,
+        model=tr.net,
         discriminator=tr.disc,
-        model_path=tr.model_path,
-        log_path=tr.log_path,
-        checkpoint_path=tr.checkpoint_path,
+        model_path=model_path,
+        log_path=tr.files.log,
+        checkpoint_path=tr.files.checkpoint,
         resumed_at_step=tr.resumed_at_step,
         skipped_steps=tr.skipped,
         perceptual=tr.perceptual is not None,
@@ -453,14 +324,15 @@ def bench(kind: str, steps: int = 10, warmup: int = 3) -> tuple[float, float]:
             return self.items[i]
 
     with tempfile.TemporaryDirectory() as d:
-        tr = _Trainer(kind, _Data(), cfg, Path(d), steps, torch.device("cpu"))
-        feed = tr.feed(warmup + steps)
+        data = _Data()
+        tr = baseline_trainer(kind, data, cfg, Path(d), steps, torch.device("cpu"))
+        batches_ = feed(tr, data, warmup + steps)
         for _ in range(warmup):
-            tr.train_step(next(feed)[0])
+            tr.train_step(next(batches_)[0])
         wall, cpu = [], []
         for _ in range(steps):
             t0, c0 = time.perf_counter(), time.process_time()
-            tr.train_step(next(feed)[0])
+            tr.train_step(next(batches_)[0])
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
     return sorted(wall)[steps // 2], sorted(cpu)[steps // 2]
