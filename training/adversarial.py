@@ -149,7 +149,8 @@ class AdversarialTrainer(AdversarialRun):
     device : where the networks train
     precision : the generator's arithmetic (``fp32``, ``bf16`` or ``fp16``; fp16 with loss
         scaling); the discriminator and the losses always run in float32
-    trainable : the generator's parameters that train (all that require grad when None)
+
+    The generator's parameters that require grad train (fine-tuning freezes the others).
 
     Under torchrun (an initialised process group) the networks are wrapped in
     DistributedDataParallel and only rank 0 writes files.
@@ -168,7 +169,6 @@ class AdversarialTrainer(AdversarialRun):
         steps: int,
         device: torch.device,
         precision: str = "fp32",
-        trainable: list[nn.Parameter] | None = None,
     ):
         self.net, self.disc, self.method, self.config, self.files = (
             generator, discriminator, method, config, files
@@ -184,10 +184,7 @@ class AdversarialTrainer(AdversarialRun):
                 f"data set has {n_samples} samples, fewer than one batch ({batch_size}{processes})"
             )
         self.net.to(device)
-        self.g_params = (
-            trainable if trainable is not None else [p for p in generator.parameters()
-                                                     if p.requires_grad]
-        )  # fmt: skip
+        self.g_params = [p for p in generator.parameters() if p.requires_grad]
         self.opt_g = adam(self.g_params, config.lr_g, config.betas, device)
         self.opt_d = None
         if discriminator is not None:
