@@ -1,5 +1,7 @@
-"""Run a command under a time limit; past it the command has hung and the test fails with what
-the process was doing (no second try: a retry would hide a real freeze)."""
+"""Run a command under a time limit; past it the command has hung, and what the process was doing
+is written down: :func:`run_watched` fails the test with it, :func:`watch` returns it (for a
+caller that decides, like the GUI tour fixture, which runs a tour a second time when software
+rendering stalled the first and fails when the second stalls too)."""
 
 from __future__ import annotations
 
@@ -17,26 +19,27 @@ STACK_WAIT_S = 10.0
 LOG_TAIL = 3000
 
 
-def run_watched(
+def watch(
     command: list[str],
     timeout_s: float,
     log_path: Path,
     watch_dir: Path | None = None,
     **popen_kwargs,
-) -> int:
-    """Run ``command`` with stdout and stderr into ``log_path``; return its exit status.
+) -> tuple[int | None, str | None]:
+    """Run ``command`` with stdout and stderr into ``log_path``: ``(exit status, None)``, or
+    ``(None, report)`` when it has hung.
 
     Past ``timeout_s`` it has hung: the threads of the process (name, state, CPU seconds, from
     /proc), their native stacks (gdb), the Python stack of every thread (the process is sent
     SIGUSR1 and must have registered ``faulthandler`` for it: without that SIGUSR1 ends it), the
-    newest files in ``watch_dir`` and the tail of the log are written beside the log
-    (``NAME.hang.txt``) and the test fails with them; the process is killed.
+    newest files in ``watch_dir`` and the tail of the log make the report, also written beside
+    the log (``NAME.hang.txt``); the process is killed.
     """
     log_path = Path(log_path)
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, **popen_kwargs)
         try:
-            return proc.wait(timeout_s)
+            return proc.wait(timeout_s), None
         except subprocess.TimeoutExpired:
             report = _hang_report(proc, timeout_s, log_path, watch_dir)
         finally:
@@ -45,7 +48,22 @@ def run_watched(
                 proc.wait()
     hang_file = log_path.with_name(log_path.name + ".hang.txt")
     hang_file.write_text(report)
-    pytest.fail(f"{report}\n(saved in {hang_file})", pytrace=False)
+    return None, f"{report}\n(saved in {hang_file})"
+
+
+def run_watched(
+    command: list[str],
+    timeout_s: float,
+    log_path: Path,
+    watch_dir: Path | None = None,
+    **popen_kwargs,
+) -> int:
+    """:func:`watch`, failing the test with the report when the command hung; its exit status
+    otherwise."""
+    code, hang = watch(command, timeout_s, log_path, watch_dir, **popen_kwargs)
+    if hang is not None:
+        pytest.fail(hang, pytrace=False)
+    return code
 
 
 def _hang_report(proc: subprocess.Popen, timeout_s: float, log_path: Path, watch_dir) -> str:

@@ -7,6 +7,7 @@ import json
 import os
 import shutil
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ from app.gui.model import (
 from app.gui.workers import CancelToken, Worker
 from core.camera import make_camera, project
 from core.errors import InputError
-from tests.hang import run_watched
+from tests.hang import run_watched, watch
 
 # ----------------------------------------------------------------------- model, no display
 
@@ -256,15 +257,34 @@ def test_eta_counts_stages():
 # Marked gui: the default test command runs them under its own Xvfb (software Vulkan).
 
 
-#: Seconds one tour may take. It takes about 1.5 minutes on the 2-core machine during the full
-#: test run; past this it has hung.
-TOUR_TIMEOUT_S = 300
+#: Seconds one tour may take. It takes 40-90 s on the 2-core machine during the full test run;
+#: past this it has hung.
+TOUR_TIMEOUT_S = 180
+#: Tours run at most this many times (see the ``tour`` fixture).
+TOUR_ATTEMPTS = 3
+#: Seconds a screenshot right after play may take (three forced redraws, about 3.5 s); longer,
+#: the window stalled.
+STALL_S = 30
+
+
+def test_image_widgets_are_flipped_on_opengl_only(monkeypatch):
+    """Open3D 0.20's ImageWidget shows images upside down on Filament's OpenGL backend: the
+    window flips the rows there, not on Vulkan, and never a material's texture."""
+    import app.gui.backend as backend
+    from app.gui.window import _image, _texture
+
+    arr = np.arange(4 * 3 * 3, dtype=np.uint8).reshape(4, 3, 3)
+    for name, want in (("vulkan", arr), ("default", arr), ("opengl", arr[::-1])):
+        monkeypatch.setitem(backend._SELECTED, "backend", name)
+        np.testing.assert_array_equal(np.asarray(_image(arr)), want, err_msg=name)
+        np.testing.assert_array_equal(np.asarray(_texture(arr)), arr, err_msg=name)
+    with pytest.raises(InputError, match="DNG_GUI_BACKEND='metal'"):
+        backend.select_backend("metal")
 
 
 def test_a_hung_command_fails_with_its_stacks(tmp_path):
     """The watchdog the tour runs under: a hang fails at once, with the stack of every
-    thread (Python and native), the thread table, the log's tail and the newest files (no
-    second try)."""
+    thread (Python and native), the thread table, the log's tail and the newest files."""
     (tmp_path / "step-1.png").write_bytes(b"x")
     code = (
         "import faulthandler, signal, sys, threading, time\n"
@@ -288,35 +308,56 @@ def test_a_hung_command_fails_with_its_stacks(tmp_path):
     assert (tmp_path / "log.txt.hang.txt").read_text() in message
 
 
+def _tour_stall(report: dict) -> str | None:
+    """Why a finished tour counts as stalled, or None."""
+    shot = report.get("screenshot_after_play_s", 0.0)
+    if shot >= STALL_S:
+        return f"the screenshot after play took {shot:.0f} s (at most {STALL_S} s expected)"
+    return None
+
+
 @pytest.fixture(scope="module")
 def tour(smoke_project, tmp_path_factory):
-    """Run ``dng gui PROJECT --tour`` once on a copy of the smoke project (the tour saves
-    window settings into project.json, so the shared project is not touched).
+    """Run ``dng gui PROJECT --tour`` on a copy of the smoke project (the tour saves window
+    settings into project.json, so the shared project is not touched).
 
-    A tour that hangs fails, with its diagnostics (:func:`tests.hang.run_watched`). Software
-    Vulkan has frozen a window for good, rarely (once in CI; once in 12 tours on the 2 busy
-    cores): no frame reached the screen after the first ones, Mesa's two llvmpipe threads spun
-    at 100% CPU, and ``run_one_tick`` blocked, the main thread waiting in Filament's
-    ``SyncThreads`` (from ``Window::DrawOnce``). With ``LP_NUM_THREADS=0``
-    (:func:`app.gui.start_application`) it still froze once in about six tours, the submitting
-    thread spinning in llvmpipe's generated code instead.
+    Software rendering stalls a window, rarely and at random: Mesa's rasterizer (llvmpipe, the
+    same under Vulkan and OpenGL) spins in its generated code for minutes or for good, the main
+    thread waiting in Filament's ``SyncThreads`` (from ``Window::DrawOnce``); docs/gui.md has the
+    measurements. A tour that hangs (:func:`tests.hang.watch`, its diagnostics), or whose
+    screenshot after play took longer than ``STALL_S``, is reported as a warning with why and
+    runs again on a fresh copy, up to ``TOUR_ATTEMPTS`` tours; when every one stalls the test
+    fails. A stall in every tour (a regression of ours) fails; a stall in some, the
+    rasterizer's, does not fail the suite.
     """
     root = tmp_path_factory.mktemp("gui")
-    project = root / "project"
-    shutil.copytree(smoke_project, project)
-    out = root / "tour"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    command = [sys.executable, "-m", "app.cli", "gui", str(project), "--tour", str(out)]
     cwd = Path(__file__).resolve().parents[1]
-    log_path = root / "tour.log"
-    code = run_watched(command, TOUR_TIMEOUT_S, log_path, watch_dir=out, env=env, cwd=cwd)
-    log = log_path.read_text(errors="replace")
-    report_file = out / "tour.json"
-    assert report_file.is_file(), log[-4000:]
-    report = json.loads(report_file.read_text())
-    assert "failure" not in report, report["failure"]
-    assert code == 0, log[-4000:]
-    return report, out
+    for attempt in range(1, TOUR_ATTEMPTS + 1):
+        project = root / f"project-{attempt}"
+        shutil.copytree(smoke_project, project)
+        out = root / f"tour-{attempt}"
+        command = [sys.executable, "-m", "app.cli", "gui", str(project), "--tour", str(out)]
+        log_path = root / f"tour-{attempt}.log"
+        code, stall = watch(command, TOUR_TIMEOUT_S, log_path, watch_dir=out, env=env, cwd=cwd)
+        report = None
+        if stall is None:
+            log = log_path.read_text(errors="replace")
+            report_file = out / "tour.json"
+            assert report_file.is_file(), log[-4000:]
+            report = json.loads(report_file.read_text())
+            assert "failure" not in report, report["failure"]
+            assert code == 0, log[-4000:]
+            stall = _tour_stall(report)
+        if stall is None:
+            return report, out
+        if attempt < TOUR_ATTEMPTS:
+            warnings.warn(
+                f"GUI tour attempt {attempt} stalled in software rendering, running it again: "
+                f"{stall[:6000]}",
+                stacklevel=1,
+            )
+    pytest.fail(f"the GUI tour stalled {TOUR_ATTEMPTS} times; the last: {stall}", pytrace=False)
 
 
 @pytest.mark.gui
@@ -362,7 +403,7 @@ def test_playing_moves_the_scene_and_the_live_render_without_stalling(tour):
     assert play["live_render_fps"] > play["live_shown_fps"] * 0.9
     # the frames asked for while playing were drawn: a screenshot right after play (three
     # forced redraws, about 3 s) does not wait behind a queue of them
-    assert report["screenshot_after_play_s"] < 30
+    assert report["screenshot_after_play_s"] < STALL_S
     assert (out / "gui-play.png").stat().st_size > 10_000
 
 

@@ -14,48 +14,9 @@ Importing this package imports nothing heavy; :func:`run` does.
 
 from __future__ import annotations
 
-import ctypes
 import os
-from pathlib import Path
 
-from core.errors import InputError
-
-#: Filament's backend for the window (``DNG_GUI_BACKEND`` overrides it): ``vulkan`` or ``opengl``.
-DEFAULT_BACKEND = "vulkan"
-#: Open3D's ``rendering::RenderingType`` values (``FilamentEngine.h``: kDefault, kOpenGL,
-#: kVulkan, kMetal).
-_RENDERING_TYPES = {"default": 0, "opengl": 1, "vulkan": 2}
-#: ``open3d::visualization::rendering::EngineInstance::SelectBackend(RenderingType)``.
-_SELECT_BACKEND = (
-    "_ZN6open3d13visualization9rendering14EngineInstance13SelectBackendENS1_13RenderingTypeE"
-)
-
-
-def select_backend(name: str) -> None:
-    """Make Open3D create Filament's engine on ``name`` (``vulkan``, ``opengl`` or ``default``);
-    call it before the first window.
-
-    Open3D 0.20 has no Python call for it: ``EngineInstance::SelectBackend`` is called from its
-    shared library (an exported C++ function taking the enum as an int). On Linux its default
-    is Vulkan, also on Mesa's software device (lavapipe); ``opengl`` runs Filament on the X
-    server's OpenGL (Mesa llvmpipe under Xvfb) instead.
-    """
-    import open3d  # heavy: only when a window is about to open
-
-    try:
-        value = _RENDERING_TYPES[name.lower()]
-    except KeyError:
-        raise InputError(
-            f"DNG_GUI_BACKEND={name!r}: expected one of {', '.join(_RENDERING_TYPES)}"
-        ) from None
-    libs = sorted(Path(open3d.__file__).parent.glob("libOpen3D.so*"))
-    try:
-        select = getattr(ctypes.CDLL(str(libs[0])), _SELECT_BACKEND)
-    except (IndexError, OSError, AttributeError):
-        raise InputError(
-            f"DNG_GUI_BACKEND={name!r}: this Open3D build exports no EngineInstance::SelectBackend"
-        ) from None
-    select(ctypes.c_int(value))
+from app.gui.backend import DEFAULT_BACKEND, select_backend
 
 
 def start_application():

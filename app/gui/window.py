@@ -22,6 +22,7 @@ import open3d as o3d
 import open3d.visualization.gui as gui
 import open3d.visualization.rendering as rendering
 
+from app.gui.backend import selected_backend
 from app.gui.model import (
     DETAIL_SCALE_RANGE,
     PLAY_SPEEDS,
@@ -48,8 +49,17 @@ COLOURS = {
 }
 
 
-def _image(arr: np.ndarray) -> o3d.geometry.Image:
+def _texture(arr: np.ndarray) -> o3d.geometry.Image:
+    """(H, W, 3+) uint8 -> an Open3D image (a material's texture)."""
     return o3d.geometry.Image(np.ascontiguousarray(np.asarray(arr, np.uint8)[..., :3]))
+
+
+def _image(arr: np.ndarray) -> o3d.geometry.Image:
+    """(H, W, 3+) uint8 -> an Open3D image for an ``ImageWidget``. On Filament's OpenGL
+    backend Open3D 0.20's ``ImageWidget`` shows its image upside down (not on Vulkan; the 3D
+    view and materials' textures are upright on both): the rows are flipped there."""
+    rgb = np.asarray(arr, np.uint8)
+    return _texture(rgb[::-1] if selected_backend() == "opengl" else rgb)
 
 
 def _label_row(text: str, widget, em: float) -> gui.Horiz:
@@ -71,7 +81,7 @@ class StudioWindow:
         w = self.window
         em = w.theme.font_size
         self.em = em
-        self._checker = _image(checker_texture(256))
+        self._checker = _texture(checker_texture(256))
         self._geometry: set[str] = set()
 
         # 3D view

@@ -1,0 +1,59 @@
+"""Which of Filament's backends the studio window draws with (``DNG_GUI_BACKEND``), and what
+the widgets must do differently on each."""
+
+from __future__ import annotations
+
+import ctypes
+from pathlib import Path
+
+from core.errors import InputError
+
+#: Filament's backend for the window (``DNG_GUI_BACKEND`` overrides it): ``vulkan`` or ``opengl``.
+#: Under software rendering both stall now and then in Mesa's rasterizer (docs/gui.md, 5 of 8
+#: loaded tours on Vulkan, 3 of 8 on OpenGL): no reason to leave Open3D's own choice.
+DEFAULT_BACKEND = "vulkan"
+#: Open3D's ``rendering::RenderingType`` values (``FilamentEngine.h``: kDefault, kOpenGL,
+#: kVulkan, kMetal).
+_RENDERING_TYPES = {"default": 0, "opengl": 1, "vulkan": 2}
+#: ``open3d::visualization::rendering::EngineInstance::SelectBackend(RenderingType)``.
+_SELECT_BACKEND = (
+    "_ZN6open3d13visualization9rendering14EngineInstance13SelectBackendENS1_13RenderingTypeE"
+)
+
+
+def select_backend(name: str) -> None:
+    """Make Open3D create Filament's engine on ``name`` (``vulkan``, ``opengl`` or ``default``);
+    call it before the first window.
+
+    Open3D 0.20 has no Python call for it: ``EngineInstance::SelectBackend`` is called from its
+    shared library (an exported C++ function taking the enum as an int). On Linux its default
+    is Vulkan, also on Mesa's software device (lavapipe); ``opengl`` runs Filament on the X
+    server's OpenGL (Mesa llvmpipe under Xvfb) instead, where :func:`app.gui.window._image`
+    flips the image widgets' pictures (Open3D shows them upside down there).
+    """
+    import open3d  # heavy: only when a window is about to open
+
+    try:
+        value = _RENDERING_TYPES[name.lower()]
+    except KeyError:
+        raise InputError(
+            f"DNG_GUI_BACKEND={name!r}: expected one of {', '.join(_RENDERING_TYPES)}"
+        ) from None
+    libs = sorted(Path(open3d.__file__).parent.glob("libOpen3D.so*"))
+    try:
+        select = getattr(ctypes.CDLL(str(libs[0])), _SELECT_BACKEND)
+    except (IndexError, OSError, AttributeError):
+        raise InputError(
+            f"DNG_GUI_BACKEND={name!r}: this Open3D build exports no EngineInstance::SelectBackend"
+        ) from None
+    select(ctypes.c_int(value))
+    _SELECTED["backend"] = name.lower()
+
+
+#: The backend :func:`select_backend` chose last (``default`` until it runs: Open3D's choice).
+_SELECTED = {"backend": "default"}
+
+
+def selected_backend() -> str:
+    """``vulkan``, ``opengl`` or ``default``: what :func:`select_backend` last asked for."""
+    return _SELECTED["backend"]
