@@ -8,6 +8,7 @@
   holds what they share (settings, the open project, the workers, the main loop); their public
   methods are the driver API tests and scripts use;
 - :mod:`app.gui.workers`: the worker threads.
+- :mod:`app.gui.backend`: Filament's backend (``DNG_GUI_BACKEND``) and what differs on each.
 
 Importing this package imports nothing heavy; :func:`run` does.
 """
