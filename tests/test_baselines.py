@@ -171,6 +171,34 @@ def test_bad_inputs_raise(data, tmp_path):
         preset("dnr", "tiny").replace(w_gan=1.0)
 
 
+def test_too_small_data_sets_are_refused_by_both_trainers(data, tmp_path):
+    """The one trainer refuses an empty data set, and one smaller than a batch, with a message
+    (ours and a baseline alike), before any file is written."""
+    from training.renderer import train_renderer
+
+    class _First:
+        def __init__(self, base, n):
+            self.base, self.n = base, n
+
+        def __len__(self):
+            return self.n
+
+        def __getitem__(self, i):
+            if not 0 <= i < self.n:
+                raise IndexError(i)
+            return self.base[i]
+
+    tiny = preset("dnr", "tiny")
+    for n, message in ((0, "data set is empty"), (tiny.batch_size - 1, "fewer than one batch")):
+        small = _First(data, n)
+        with pytest.raises(InputError, match=message):
+            train_baseline("dnr", small, tmp_path / f"dnr-{n}", tiny, progress=False)
+        with pytest.raises(InputError, match=message):
+            train_renderer(small, tmp_path / f"ours-{n}", RENDERER_PRESETS["tiny"], progress=False)
+        assert not any((tmp_path / f"dnr-{n}").glob("*.pt"))
+        assert not any((tmp_path / f"ours-{n}").glob("*.pt"))
+
+
 def test_bad_model_files(tmp_path):
     with pytest.raises(InputError, match="not found") as e:
         load_baseline(tmp_path / "nope.pt")

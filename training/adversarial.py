@@ -112,7 +112,9 @@ class RunFiles:
 
 def dataset_fingerprint(dataset) -> str:
     """SHA-256 of the data set's length and its first and last samples (cheap, catches a
-    different data set in a resumed folder)."""
+    different data set in a resumed folder); InputError for an empty data set."""
+    if len(dataset) == 0:
+        raise InputError("data set is empty: nothing to train on")
     h = hashlib.sha256(str(len(dataset)).encode())
     for i in sorted({0, len(dataset) - 1}):
         s = dataset[i]
