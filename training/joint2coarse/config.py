@@ -60,8 +60,9 @@ class Joint2CoarseConfig(PlainConfig):
     mirror: bool = False
     """Train on each training clip's left-right mirror too (:mod:`training.joint2coarse.augment`:
     the simulation of the mirrored motion, for no simulation; a project's garment that is not
-    symmetric trains without, and its report says so), both models; ours then also predicts symmetrically, as the mean of its
-    prediction and the reflected prediction for the mirrored motion (twice the work a frame).
+    symmetric trains without, and its report says so), both models; ours then also predicts
+    symmetrically, as the mean of its prediction and the reflected prediction for the mirrored
+    motion (twice the work a frame).
     The quick preset sets it, chosen on its validation motions (mean over them of the mean /
     p95 vertex error, mm, seeds 0 to 5: 34.0 / 74 without, 28.8 / 64 with; ``python
     benchmarks/joint2coarse_validation.py P --set mirror=true --seeds 0 1 2 3 4 5``)."""

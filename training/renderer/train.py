@@ -321,7 +321,8 @@ def train_renderer(
                 checkpoint_every=cfg.checkpoint_every,
                 postfix=lambda m: {"g": f"{m['loss_g']:.4g}", "d": f"{m['loss_d']:.4g}",
                                    "skipped": tr.skipped},
-                preview_every=cfg.preview_every, preview=lambda: _preview(tr, dataset, out_dir), callback=callback,
+                preview_every=cfg.preview_every, preview=lambda: _preview(tr, dataset, out_dir),
+                callback=callback,
                 say=tqdm.write if tr.rank == 0 else None,
             )  # fmt: skip
     tr.net.eval()
