@@ -55,6 +55,8 @@ FABRICS: dict[str, Fabric] = {
 #: ``final`` on the twirl (folded long skirt, 1488 vertices): 29.4 / 101 from 32 x 64. Not the
 #: cloth's own sensitivity: moving the garment 10 um moves a plain run 1.1-2.2 mm mean
 #: (``--floor``). The iterations converge slowly; :data:`CHEBYSHEV_RHO` accelerates a proxy's.
+#: Even so one walk frame at 8 x 16 ends 9.5 mm (mean) from the same steps converged, 0.6 mm at
+#: 8 x 256 (``benchmarks/sim_step_convergence.py``, on a quick proxy; README "Simulation quality").
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
 #: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).

@@ -604,41 +604,44 @@ class _Scene:
         self.s0.particle_qd.assign(wp.array(snap[1], dtype=wp.vec3, device=self.device))
 
 
-def simulate(
-    garment: Mesh,
-    motion,
-    shape: BodyShape | None = None,
-    config: SimConfig | None = None,
-    *,
-    path=None,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[SimCache, SimReport]:
-    """Simulate ``garment`` (in its rest pose on the rest mannequin) under ``motion``.
+@dataclass
+class Prepared:
+    """A simulation set up and not yet stepped (:func:`prepare`): the scene at the rest pose and
+    the body's poses and velocities at every solver step of the lead-in and the clip."""
 
-    Parameters
-    ----------
-    garment : Mesh, vertices (V, 3) float32 in the rest (A-pose) frame of ``shape``'s mannequin
-    motion : core.motion.Motion on the mannequin's joints (``MANNEQUIN_JOINTS``), T frames
-    shape : the body (default ``BodyShape()``)
-    config : SimConfig (default ``SimConfig()``)
-    path : the garment's file, named in errors
-    progress : called with (frames done, total) after every kept clip frame
+    scene: _Scene
+    drive: BodyDrive
+    poses: np.ndarray
+    """(S + 1, K, 7) float32: the capsules' transforms at every step boundary."""
+    velocities: np.ndarray
+    """(S, K, 6) float32: the capsules' spatial velocities over every step."""
+    config: SimConfig
+    """The config as run: ``self_collision`` and ``chebyshev_rho`` resolved."""
+    capsules: object
+    pins: object
+    seams: Seams
+    edges: np.ndarray
+    """(E, 2) int: the garment's unique edges."""
+    rest_lengths: np.ndarray
+    """(E,) float64: their rest lengths."""
+    notes: list
 
-    Returns
-    -------
-    cache : SimCache, positions (T, V, 3) float32, frame 0 after the lead-in
-    report : SimReport
+    def step(self, a: int, b: int) -> None:
+        """Solver steps ``a``..``b`` of the drive, as :func:`simulate` runs them (no checks)."""
+        for s in range(a, b):
+            self.scene.step(
+                self.drive.transforms[s], self.drive.transforms[s + 1], self.drive.dt,
+                (self.poses[s], self.poses[s + 1], self.velocities[s]),
+            )  # fmt: skip
 
-    Raises
-    ------
-    SimulationError
-        A frame blew up (non-finite, runaway speed, strain far beyond the fabric's) and stayed
-        blown up after ``config.max_retries`` finer retries.
-    InputError
-        Motion not on the mannequin; garment with no boundary to pin.
-    """
-    t_start = time.perf_counter()
-    shape = BodyShape() if shape is None else shape
+
+def prepare(
+    garment: Mesh, motion, shape: BodyShape, config: SimConfig | None = None, path=None
+) -> Prepared:
+    """Build the scene of ``garment`` under ``motion`` (the setup of :func:`simulate`, whose
+    arguments these are): the body drive, colliders, pins, seams, the solver and every step's
+    capsule poses. ``InputError`` for a motion not on the mannequin, a garment with nothing to
+    pin or a zero-length edge."""
     config = SimConfig() if config is None else config
     skeleton = mannequin_skeleton(shape)
     rotations, roots = motion_arrays(skeleton, motion, path)
@@ -680,6 +683,50 @@ def simulate(
     scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0])
     poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
     velocities = scene._body_vel(poses[:-1], poses[1:], drive.dt)
+    return Prepared(
+        scene, drive, poses, velocities, config, capsules, pins, seams, edges, rest_len, notes
+    )
+
+
+def simulate(
+    garment: Mesh,
+    motion,
+    shape: BodyShape | None = None,
+    config: SimConfig | None = None,
+    *,
+    path=None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[SimCache, SimReport]:
+    """Simulate ``garment`` (in its rest pose on the rest mannequin) under ``motion``.
+
+    Parameters
+    ----------
+    garment : Mesh, vertices (V, 3) float32 in the rest (A-pose) frame of ``shape``'s mannequin
+    motion : core.motion.Motion on the mannequin's joints (``MANNEQUIN_JOINTS``), T frames
+    shape : the body (default ``BodyShape()``)
+    config : SimConfig (default ``SimConfig()``)
+    path : the garment's file, named in errors
+    progress : called with (frames done, total) after every kept clip frame
+
+    Returns
+    -------
+    cache : SimCache, positions (T, V, 3) float32, frame 0 after the lead-in
+    report : SimReport
+
+    Raises
+    ------
+    SimulationError
+        A frame blew up (non-finite, runaway speed, strain far beyond the fabric's) and stayed
+        blown up after ``config.max_retries`` finer retries.
+    InputError
+        Motion not on the mannequin; garment with no boundary to pin.
+    """
+    t_start = time.perf_counter()
+    shape = BodyShape() if shape is None else shape
+    run = prepare(garment, motion, shape, config, path)
+    scene, drive, config = run.scene, run.drive, run.config
+    capsules, pins, seams = run.capsules, run.pins, run.seams
+    edges, rest_len, notes, n = run.edges, run.rest_lengths, run.notes, drive.steps_per_frame
     fab = config.material
     strain_blowup = config.blowup_strain * fab.max_strain
 
@@ -707,11 +754,10 @@ def simulate(
         snap = scene.snapshot()
         for attempt in range(config.max_retries + 1):
             split = 2**attempt
-            for s in range(a, b):
+            if split == 1:
+                run.step(a, b)
+            for s in range(a, b) if split > 1 else ():
                 ma, mb = drive.transforms[s], drive.transforms[s + 1]
-                if split == 1:
-                    scene.step(ma, mb, drive.dt, (poses[s], poses[s + 1], velocities[s]))
-                    continue
                 for k in range(split):
                     m0 = _interp_transforms(ma, mb, k / split)
                     m1 = _interp_transforms(ma, mb, (k + 1) / split)

@@ -1,0 +1,34 @@
+"""``benchmarks/sim_step_convergence.py``: one frame's solver steps re-run from the same state
+at several iteration counts, against the step run to convergence."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+from core.body.shape import BodyShape
+from core.motion.procedural import make_motion
+from tests.sim_helpers import frustum_skirt
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "sim_step_convergence.py"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("sim_step_convergence", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_more_iterations_come_closer_to_the_converged_step():
+    shape = BodyShape()
+    motion = make_motion("walk", 4, 30.0, 0, shape)
+    settings = [(0.0, 1), (0.0, 4), (0.0, 48), (0.9, 4)]
+    out = _bench().measure(frustum_skirt(16, 6), motion, shape, 2, 2, settings, 48, 10)
+    plain1, plain4, same, accelerated = out["rows"]
+    assert out["moved_mm"] > 0
+    # The reference's own setting, re-run from the same state, is the reference (CPU: serial).
+    assert same["mean_mm"] == 0 and same["max_mm"] == 0
+    assert plain1["mean_mm"] > plain4["mean_mm"] > 0
+    assert accelerated["mean_mm"] < plain4["mean_mm"]
+    assert [r["iterations"] for r in out["rows"]] == [1, 4, 48, 4]
