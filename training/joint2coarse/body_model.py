@@ -66,9 +66,8 @@ ACCELERATION_LAGS = (1, 3, 6)
 #: they no longer matter: 35.1 / 76 without against 35.0 / 76 (the (256, 256) network, seeds 0
 #: and 1); kept, since the model is no better without them.
 TURN_LAGS = (1, 2, 3, 4, 6, 8, 12, 16)
-#: Training of the residual network (``residual_widths``): AdamW with this weight decay, this
-#: many frames per step, a one-cycle learning-rate schedule peaking at ``learning_rate``.
-RESIDUAL_WEIGHT_DECAY = 1e-4
+#: Training of the residual network (``residual_widths``): AdamW (``residual_weight_decay``),
+#: this many frames per step, a one-cycle learning-rate schedule peaking at ``learning_rate``.
 RESIDUAL_BATCH = 128
 #: Joint index in the descriptor's 19 joints (the root is not in it: it is the origin).
 _DESC = {name: i for i, name in enumerate(JOINT2COARSE_JOINTS[1:])}
@@ -504,7 +503,8 @@ def fit_residual_network(
 ) -> tuple[list[np.ndarray], np.ndarray]:
     """Train the residual network: ReLU layers of ``config.residual_widths`` (dropout
     ``residual_dropout``) onto the coefficients of the first ``residual_basis`` principal
-    components of the training residuals, ``residual_steps`` AdamW steps (module constants),
+    components of the training residuals, ``residual_steps`` AdamW steps (module constants;
+    Gaussian noise of ``residual_input_noise`` on the inputs),
     the loss the residual's squared error in metres. Seeded by ``config.seed`` on its own random
     stream (the caller's is untouched).
 
@@ -539,7 +539,7 @@ def fit_residual_network(
             width = w
         net = torch.nn.Sequential(*layers, torch.nn.Linear(width, k))
         opt = torch.optim.AdamW(
-            net.parameters(), lr=config.learning_rate, weight_decay=RESIDUAL_WEIGHT_DECAY
+            net.parameters(), lr=config.learning_rate, weight_decay=config.residual_weight_decay
         )
         steps = max(1, config.residual_steps)
         sched = torch.optim.lr_scheduler.OneCycleLR(
@@ -548,7 +548,12 @@ def fit_residual_network(
         batch = min(RESIDUAL_BATCH, len(inputs))
         for _ in range(config.residual_steps):
             i = torch.randint(0, len(inputs), (batch,), generator=gen)
-            loss = (((net(inputs[i]) - targets[i]) ** 2) * loss_weight).mean()
+            xb = inputs[i]
+            if config.residual_input_noise > 0:  # the features, not the bias column
+                noise = torch.randn(xb.shape, generator=gen) * config.residual_input_noise
+                noise[:, -1] = 0.0
+                xb = xb + noise
+            loss = (((net(xb) - targets[i]) ** 2) * loss_weight).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
