@@ -456,6 +456,7 @@ def test_errors_export_and_settings(tour):
     assert [k["frame"] for k in keys] == [0, 5]
     restored, saved = report["restored"], report["saved_settings"]
     assert restored["frame"] == saved["frame"] == 3
+    assert saved["view_mode"] == report["opened_in_view"]  # a second tour opens the same way
     assert restored["motion"] == saved["motion"] == report["motion"]
     assert restored["camera_path_keys"] == 2
     assert restored["eye_diff"] < 1e-3 and restored["target_diff"] < 1e-3

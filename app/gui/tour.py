@@ -142,6 +142,10 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     studio.wait_idle(timeout=180)
     report["open_project_s"] = time.perf_counter() - t1
     report["opened_in_view"] = player.main_view()
+    if player.main_view() != "neural":  # a project saved in another view by a user
+        note("   (the project opened in its saved view: switching to the neural view)")
+        player.set_view_mode("neural")
+        studio.wait_idle()
     # 2b. the neural viewport (a project opens in it): a drag turns its camera, scrubbing changes the frame, play
     note("2b. neural viewport: drag, scrub, play, compare")
     report["neural_view"] = player.main_view()
@@ -301,6 +305,9 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     player.seek(3)
     studio.wait_idle()
     saved_pose = player.current_pose()
+    # The view the project opened in is what its settings keep: the tour switched to the 3D
+    # view for its own steps, and a second tour on the same folder opens where this one did.
+    player.set(view_mode=report["opened_in_view"])
     studio.save_settings()
     saved = load_settings(project)
     report["saved_settings"] = saved.as_dict()
