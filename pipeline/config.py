@@ -308,8 +308,8 @@ PRESETS: dict[str, PipelineConfig] = {
         # 0, 0.25, 0.5, 2: 29.5 / 65, 29.7 / 65, 29.0 / 64, 30.9 / 69; residual_dropout 0.05,
         # 0.2: 30.6 / 67, 30.2 / 67; residual_basis 64: 30.3 / 67; window 50: 30.5 / 68.
         # Not taken either, with these settings (seeds 0 to 2: 27.9 / 62): learning_rate 5e-4
-        # and 2e-3 28.3 / 63 and 28.3 / 62; residual_weight_decay and residual_input_noise (their
-        # docstrings).
+        # and 2e-3 28.3 / 63 and 28.3 / 62; residual_widths [128, 128, 128] 27.9 / 62, [64, 64]
+        # 28.2 / 63; residual_weight_decay and residual_input_noise (their docstrings).
         joint2coarse_overrides={
             "model": "ours",
             "residual_widths": [128, 128],
