@@ -756,12 +756,13 @@ def simulate(
             split = 2**attempt
             if split == 1:
                 run.step(a, b)
-            for s in range(a, b) if split > 1 else ():
-                ma, mb = drive.transforms[s], drive.transforms[s + 1]
-                for k in range(split):
-                    m0 = _interp_transforms(ma, mb, k / split)
-                    m1 = _interp_transforms(ma, mb, (k + 1) / split)
-                    scene.step(m0, m1, drive.dt / split)
+            else:
+                for s in range(a, b):
+                    ma, mb = drive.transforms[s], drive.transforms[s + 1]
+                    for k in range(split):
+                        m0 = _interp_transforms(ma, mb, k / split)
+                        m1 = _interp_transforms(ma, mb, (k + 1) / split)
+                        scene.step(m0, m1, drive.dt / split)
             problem = check(scene.positions(), scene.velocities(), b)
             if problem is None:
                 return attempt > 0

@@ -503,10 +503,10 @@ def fit_residual_network(
 ) -> tuple[list[np.ndarray], np.ndarray]:
     """Train the residual network: ReLU layers of ``config.residual_widths`` (dropout
     ``residual_dropout``) onto the coefficients of the first ``residual_basis`` principal
-    components of the training residuals, ``residual_steps`` AdamW steps (module constants;
-    Gaussian noise of ``residual_input_noise`` on the inputs),
-    the loss the residual's squared error in metres. Seeded by ``config.seed`` on its own random
-    stream (the caller's is untouched).
+    components of the training residuals, ``residual_steps`` AdamW steps (weight decay
+    ``residual_weight_decay``; batch and schedule as the module constants say), Gaussian noise
+    of ``residual_input_noise`` on the inputs, the loss the residual's squared error in metres.
+    Seeded by ``config.seed`` on its own random stream (the caller's is untouched).
 
     Parameters
     ----------
