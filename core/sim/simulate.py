@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from core.body.colliders import (
+    BodyCapsules,
     arms_collide,
     garment_capsules,
     is_arm,
@@ -45,7 +46,7 @@ from core.mesh import Mesh, count_components, unique_edges
 from core.sim.cache import SimCache
 from core.sim.config import CHEBYSHEV_RHO, SimConfig
 from core.sim.drive import BodyDrive, body_drive
-from core.sim.pins import Seams, find_pins, find_seams
+from core.sim.pins import Pins, Seams, find_pins, find_seams
 from core.sim.sanity import hem_indices, hem_radius_ratio
 
 #: Weight of a kinematic particle in Style3D's cloth-cloth contacts (its solver row is 0; a free
@@ -617,8 +618,9 @@ class Prepared:
     """(S, K, 6) float32: the capsules' spatial velocities over every step."""
     config: SimConfig
     """The config as run: ``self_collision`` and ``chebyshev_rho`` resolved."""
-    capsules: object
-    pins: object
+    capsules: BodyCapsules
+    """The colliders the cloth meets (the arms only when they collide)."""
+    pins: Pins
     seams: Seams
     edges: np.ndarray
     """(E, 2) int: the garment's unique edges."""
