@@ -43,12 +43,17 @@ def measure(
     iterations a step), and the reference's mean displacement over the frame. ``overrides``:
     other :class:`~core.sim.config.SimConfig` settings of every run.
     """
+    from core.errors import InputError
     from core.sim.config import SimConfig
     from core.sim.simulate import prepare
     from core.sim.style3d import chebyshev_omegas
 
-    if not 1 <= frame < motion.num_frames:
-        raise ValueError(f"frame must be in 1..{motion.num_frames - 1}, got {frame}")
+    if not 1 <= frame < motion.num_frames - 1:
+        raise InputError(f"--frame must be in 1..{motion.num_frames - 2}, got {frame}")
+    if min(k for _, k in settings) < 1 or reference < 1 or linear < 1 or substeps < 1:
+        raise InputError("--iterations, --reference, --linear and --substeps must be at least 1")
+    if not all(0 <= r < 1 for r, _ in settings):
+        raise InputError("--rhos must be in [0, 1)")
     config = SimConfig(
         substeps=substeps, iterations=settings[0][1], linear_iterations=linear,
         **(overrides or {}),
@@ -57,7 +62,7 @@ def measure(
         run = prepare(garment, motion, shape, config)
     scene, drive = run.scene, run.drive
     run.step(0, drive.frame_step(frame))
-    start = scene.snapshot()
+    before, start = scene.positions(), scene.snapshot()
     a, b = drive.frame_step(frame), drive.frame_step(frame + 1)
 
     def one_frame(rho: float, iterations: int) -> tuple[np.ndarray, float]:
@@ -68,7 +73,6 @@ def measure(
         return scene.positions(), (time.perf_counter() - t) * 1000
 
     ref, _ = one_frame(0.0, reference)
-    before = start[0][scene.first_particle : scene.first_particle + scene.n]
     rows = []
     for rho, iterations in settings:
         pos, ms = one_frame(rho, iterations)
@@ -99,24 +103,24 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="print only the JSON")
     args = parser.parse_args()
 
-    from app.bench.sim import bench_motion, sim_overrides
+    from app.bench.sim import bench_garment, bench_motion, sim_overrides
     from core.body.shape import BodyShape
-    from core.mesh import load_mesh
-    from templates.garments import make_garment
+    from core.errors import InputError
 
     shape = BodyShape()
-    if Path(args.garment).exists():
-        garment = load_mesh(args.garment)[0]
-    else:
-        garment = make_garment(args.garment, 50.0, shape=shape)
-    motion = bench_motion(args.motion, args.frames, 0, shape)
-    if motion is None:
-        raise SystemExit(f"{args.motion}: clip file not on this machine")
-    settings = [(r, k) for r in args.rhos for k in args.iterations]
-    result = measure(
-        garment, motion, shape, args.frame, args.substeps, settings, args.reference, args.linear,
-        sim_overrides(args.overrides),
-    )  # fmt: skip
+    try:
+        garment = bench_garment(args.garment, 50.0, shape)
+        motion = bench_motion(args.motion, args.frames, 0, shape)
+        if motion is None:
+            raise InputError(f"{args.motion}: clip file not on this machine")
+        settings = [(r, k) for r in args.rhos for k in args.iterations]
+        result = measure(
+            garment, motion, shape, args.frame, args.substeps, settings, args.reference,
+            args.linear, sim_overrides(args.overrides),
+        )  # fmt: skip
+    except InputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
     result.update(
         garment=args.garment, vertices=garment.num_vertices, motion=args.motion,
         frame=args.frame, substeps=args.substeps, reference_iterations=args.reference,

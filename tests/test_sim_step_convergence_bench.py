@@ -4,9 +4,14 @@ at several iteration counts, against the step run to convergence."""
 from __future__ import annotations
 
 import importlib.util
+import subprocess
+import sys
 from pathlib import Path
 
+import pytest
+
 from core.body.shape import BodyShape
+from core.errors import InputError
 from core.motion.procedural import make_motion
 from tests.sim_helpers import frustum_skirt
 
@@ -32,3 +37,20 @@ def test_more_iterations_come_closer_to_the_converged_step():
     assert plain1["mean_mm"] > plain4["mean_mm"] > 0
     assert accelerated["mean_mm"] < plain4["mean_mm"]
     assert [r["iterations"] for r in out["rows"]] == [1, 4, 48, 4]
+
+
+def test_bad_settings_and_a_missing_garment_exit_with_a_message(tmp_path):
+    shape = BodyShape()
+    motion = make_motion("walk", 4, 30.0, 0, shape)
+    bench = _bench()
+    with pytest.raises(InputError, match="--frame must be in 1..2"):
+        bench.measure(frustum_skirt(16, 6), motion, shape, 3, 2, [(0.0, 4)], 8, 10)
+    with pytest.raises(InputError, match="at least 1"):
+        bench.measure(frustum_skirt(16, 6), motion, shape, 1, 2, [(0.0, 0)], 8, 10)
+    with pytest.raises(InputError, match="rhos"):
+        bench.measure(frustum_skirt(16, 6), motion, shape, 1, 2, [(1.0, 4)], 8, 10)
+    missing = tmp_path / "missing.obj"
+    out = subprocess.run(
+        [sys.executable, str(BENCH), "--garment", str(missing)], capture_output=True, text=True
+    )
+    assert out.returncode == 2 and "missing.obj" in out.stderr and out.stdout == ""

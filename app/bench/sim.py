@@ -162,8 +162,9 @@ def perturbed(garment, sigma: float, seed: int):
     return replace(garment, vertices=moved.astype(np.float32))
 
 
-def _garment(spec: str, resolution: float, shape):
-
+def bench_garment(spec: str, resolution: float, shape):
+    """The garment a simulation bench runs: a mesh file, or a built-in garment made at
+    ``resolution`` mm on ``shape``'s mannequin."""
     if Path(spec).exists():
         return load_mesh(spec)[0]
     return make_garment(spec, resolution, shape=shape)
@@ -188,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
         **sim_overrides(args.overrides),
     )  # fmt: skip
     shape = BodyShape()
-    garment = _garment(args.garment, args.resolution, shape)
+    garment = bench_garment(args.garment, args.resolution, shape)
     rows, skipped = [], []
     for clip in clips:
         motion = bench_motion(clip, args.frames, args.seed, shape)
