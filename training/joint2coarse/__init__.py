@@ -13,7 +13,7 @@ Array-level API (the CLI and project folders wrap it):
   shape autoencoder on known shapes: what the decoder reaches).
 """
 
-from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules
+from core.body.colliders import DEFAULT_MARGIN_M, push_out_of_capsules
 from training.joint2coarse.config import PRESETS, Joint2CoarseConfig
 from training.joint2coarse.descriptor import (
     JOINT2COARSE_JOINTS,

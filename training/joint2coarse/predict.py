@@ -6,9 +6,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from core.body.colliders import DEFAULT_MARGIN_M, push_out_of_capsules
 from core.errors import InputError
 from training.joint2coarse.body_model import BodyResidualModel
-from training.joint2coarse.collision import DEFAULT_MARGIN_M, push_out_of_capsules
 from training.joint2coarse.descriptor import (
     NUM_JOINTS,
     check_joint_inputs,
