@@ -9,7 +9,7 @@ import numpy as np
 from core.body.shape import BodyShape, mannequin_skeleton
 from core.mesh import Mesh
 from core.motion.motion import Motion
-from core.proxy.testing import ring_grid
+from core.proxy.testing import ring_grid, skirt_tube
 from core.skeleton import rotation_about
 
 
@@ -26,15 +26,21 @@ def frustum_skirt(
     """An open cone frustum from just above the hips (waist loop on top) to above the knees
     (``hem_height`` x ``height``). With ``folds`` > 0 the hem is gathered into that many radial
     folds of ``fold_depth`` metres, fading to none at the waist: more cloth at the hem than its
-    hanging circle, as a skirt that can flare has."""
-    h = height
-    y_top, y_bot = 0.57 * h, hem_height * h
-    r_top, r_bot = 0.19, hem_radius
-    s = np.arange(rings)[:, None] / (rings - 1)
-    a = 2 * np.pi * np.arange(around) / around
-    r = r_top + (r_bot - r_top) * s + fold_depth * s**1.5 * np.sin(folds * a)
-    verts, faces = ring_grid(y_top + (y_bot - y_top) * s[:, 0], r)
-    return Mesh(verts.astype(np.float32), faces)
+    hanging circle, as a skirt that can flare has. :func:`core.proxy.testing.skirt_tube` with a
+    straight flare."""
+    vertices, faces = skirt_tube(
+        waist_y=0.57 * height,
+        length=(0.57 - hem_height) * height,
+        waist_r=0.19,
+        hem_r=hem_radius,
+        n_around=around,
+        n_along=rings,
+        folds=folds,
+        fold_depth=fold_depth,
+        flare_power=1.0,
+        fold_power=1.5,
+    )
+    return Mesh(vertices.astype(np.float32), faces)
 
 
 def spin_motion(frames: int = 6, fps: float = 30.0, turns_per_s: float = 0.5) -> Motion:

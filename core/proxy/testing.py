@@ -114,16 +114,23 @@ def skirt_tube(
     folds: int = 0,
     fold_depth: float = 0.0,
     flare_length: float | None = None,
+    flare_power: float = 0.8,
+    fold_power: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One skirt layer from the waist (top loop) down to the hem (bottom loop), with ``folds``
     vertical pleats of ``fold_depth`` metres growing from the waist to the hem. The radius
     reaches ``hem_r`` at ``flare_length`` below the waist (default ``length``), so layers of
-    different lengths with the same flare follow each other at a constant gap."""
+    different lengths with the same flare follow each other at a constant gap.
+
+    At a fraction ``s`` of the way down, the radius is ``waist_r + (hem_r - waist_r) *
+    drop**flare_power`` (``drop = s * length / flare_length``; 1: a cone frustum, below 1: a
+    bell) and the pleats are ``fold_depth * s**fold_power`` deep."""
     flare = length if flare_length is None else flare_length
 
     def radius(th, s):
         drop = s * length / flare
-        return waist_r + (hem_r - waist_r) * drop**0.8 + fold_depth * s * np.sin(folds * th)
+        pleat = fold_depth * s**fold_power * np.sin(folds * th)
+        return waist_r + (hem_r - waist_r) * drop**flare_power + pleat
 
     return tube(radius, [0, waist_y, 0], [0, waist_y - length, 0], n_around, n_along)
 
