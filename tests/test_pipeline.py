@@ -331,3 +331,27 @@ def test_overrides_reach_their_network_and_dnr_with_our_loss():
     assert j2c.encoder_widths == (64, 32) and j2c.dropout == 0.05
     with pytest.raises(InputError, match="dropout=1.5 must be in"):
         joint2coarse_config(replace(quick, joint2coarse_overrides={"dropout": 1.5}))
+
+
+def test_a_new_ground_truth_reruns_what_learned_from_the_old_one(smoke, tmp_path):
+    """The renderer, the baselines and the evaluation take ``samples.json`` as their input; it
+    names the target cache's hash, so new target motion with the same cameras still reruns them."""
+    import shutil
+    from dataclasses import replace
+
+    from core.sim import load_cache, save_cache
+    from pipeline.stages.dataset import stage_dataset
+
+    out, _ = smoke
+    copy = tmp_path / "project"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("baselines", "eval", "videos"))
+    index = copy / "dataset" / "samples.json"
+    before = json.loads(index.read_text())
+    target = copy / "sim" / "dance-target" / "cache.npz"
+    cache = load_cache(target)
+    save_cache(target, replace(cache, positions=cache.positions + np.float32(0.01)))
+    project = Project(copy)
+    stage_dataset(project, project_config(project))
+    after = json.loads(index.read_text())
+    assert after["samples"] == before["samples"]  # the same cameras ...
+    assert after["ground_truth"] != before["ground_truth"]  # ... of another ground truth

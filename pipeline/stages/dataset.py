@@ -13,12 +13,16 @@ from core.body.skinning import pose_body
 from core.camera import CameraRigConfig, camera_to_dict, random_cameras
 from core.fileio import write_json
 from core.mesh import Mesh, load_mesh
-from core.project import Project
+from core.project import Project, fingerprint
 from core.shading import render_views, write_png
 from core.sim import load_cache
 from pipeline.config import Log, PipelineConfig, quiet
 from pipeline.stages.motions import load_project_motion
 from training.dataset import sample_name
+
+#: Version of ``samples.json``: 2 names the ground truth's hash (a project rendered before it
+#: renders again, so the stages trained on a stale ground truth rerun too).
+INDEX_VERSION = 2
 
 # ---------------------------------------------------------------------------------- data set
 
@@ -59,6 +63,7 @@ def stage_dataset(project: Project, config: PipelineConfig, log: Log = quiet) ->
     target_cache = project.path(f"sim/{train}-target", "cache.npz")
     motion_file = project.path("motions", f"{train}.bvh")
     params = {
+        "index": INDEX_VERSION,
         "views": config.views_per_frame,
         "stride": config.frame_stride,
         "size": config.image_size,
@@ -94,11 +99,14 @@ def _render_samples(
     For every centre t (:func:`sample_frames`) and each of ``views`` cameras
     (``random_cameras(seed=(*seed, t))`` on :func:`dataset_rig`, following the body's root at
     t), renders the target on the body and the body alone at frames t-1, t, t+1. Returns the
-    sample records written to ``samples.json``.
+    sample records written to ``samples.json``, which also names the target cache's content
+    hash (``ground_truth``): the stages trained or scored on these images take ``samples.json``
+    as their input, so a new ground truth reruns them even where the cameras stay the same.
     """
     from tqdm import tqdm
 
-    cache = load_cache(project.path(f"sim/{motion_name}-target", "cache.npz"))
+    cache_file = project.path(f"sim/{motion_name}-target", "cache.npz")
+    cache = load_cache(cache_file)
     motion = load_project_motion(project, motion_name)
     rest, _ = load_mesh(project.path("garment", "target.obj"))
     body = make_body(config.body)
@@ -129,7 +137,7 @@ def _render_samples(
     write_json(
         out / "samples.json",
         {"motion": motion_name, "fps": cache.fps, "num_frames": cache.num_frames,
-         "samples": samples},
+         "ground_truth": fingerprint({}, [cache_file]), "samples": samples},
     )  # fmt: skip
     return samples
 
@@ -154,6 +162,7 @@ def stage_testset(
     target_cache = project.path(f"sim/{motion_name}-target", "cache.npz")
     stage = f"testset/{motion_name}"
     params = {
+        "index": INDEX_VERSION,
         "views": config.test_views,
         "stride": config.test_stride,
         "size": config.image_size,
