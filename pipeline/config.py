@@ -82,6 +82,10 @@ class PipelineConfig:
     truth; minutes per clip on CPU, and stacked layers millimetres apart need small steps), or
     ``embed`` it in the simulated proxy (``core.sim.embed``: the target follows the proxy's
     dynamics exactly, its details keep their offsets, no secondary motion of their own)."""
+    target_contact: bool = True
+    """Keep the embedded target out of the body the simulation collides with
+    (``core.sim.embed.BodyContact``): its inner layers squeeze between the proxy and the body
+    instead of sinking into the hips (up to 88 mm without it on the quick dance)."""
     views_per_frame: int = 5
     """Cameras per training frame (the paper: 10); each gives one sample of frames t-1, t, t+1."""
     frame_stride: int = 2

@@ -503,6 +503,8 @@ def _ground_truth_markdown(report: dict) -> list[str]:
     ]
     for name, s in targets.items():
         mode = "embedded in the proxy" if s.get("mode") == "embed" else "simulated"
+        if s.get("contact"):
+            mode += f", kept {1e3 * s['contact']['margin']:.0f} mm out of the body"
         p99 = s.get("strain_p99")
         cp99 = s.get("compression_p99")
         lines.append(

@@ -142,7 +142,12 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the proxy simulated (newton, Style3D, "
             + steps
             + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}); the detailed target embedded in "
-            "it: its details keep their offsets, no secondary motion of their own",
+            "it: its details keep their offsets, no secondary motion of their own"
+            + (
+                "; its inner layers pushed out of the body's capsules where they would sink in"
+                if config.target_contact
+                else ""
+            ),
             "simulating stacked layers millimetres apart takes minutes per clip on 2 cores; "
             "Marvelous Designer is not available",
         )

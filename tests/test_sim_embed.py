@@ -93,3 +93,33 @@ def test_strain_stats_measure_stretch_compression_and_tears():
     s = strain_stats(np.stack([v, moved]), v, f)
     assert np.isclose(s.stretch_max, 1.5) and np.isclose(s.compression_max, 0.5)
     assert s.torn_edges == 1
+
+
+def test_contact_keeps_an_inner_layer_out_of_the_body_without_tearing_it():
+    from core.body.colliders import penetration_depths
+    from core.sim.embed import BodyContact, strain_stats
+
+    proxy = frustum_skirt(48, 20)
+    inner = proxy.vertices.astype(np.float64).copy()  # a layer 3 cm inside the proxy
+    r = np.linalg.norm(inner[:, [0, 2]], axis=1, keepdims=True)
+    inner[:, [0, 2]] *= (r - 0.03) / r
+    faces = proxy.faces
+    e = embed(inner, proxy.vertices, proxy.faces, target_faces=faces)
+    # A thigh-like capsule pushing out along +X at mid-skirt: into the inner layer by up to
+    # 2 cm, short of the proxy by 1 cm.
+    y = float(np.median(proxy.vertices[:, 1]))
+    ring = np.abs(proxy.vertices[:, 1] - y) < 0.03
+    r_mid = float(np.linalg.norm(proxy.vertices[ring][:, [0, 2]], axis=1).min())
+    ends = np.array([[[[0.0, y, 0.0], [r_mid - 0.06, y, 0.0]]]])
+    radii = np.array([0.05])
+    frames = proxy.vertices[None].astype(np.float64)
+    free = drive(e, frames)
+    assert penetration_depths(free, ends, radii).max() > 0.01  # the layer is inside
+    kept = drive(e, frames, BodyContact(ends, radii))
+    assert penetration_depths(kept, ends, radii).max() <= 1e-6
+    stats = strain_stats(kept, inner, faces)
+    assert stats.torn_edges == 0 and stats.stretch_max <= 0.3, stats
+    far = np.linalg.norm(inner - [r_mid, y, 0.0], axis=1) > 0.25
+    assert far.any() and np.array_equal(kept[0, far], free[0, far])  # only the contact moved
+    with pytest.raises(InputError, match="contact capsules"):
+        drive(e, np.concatenate([frames, frames]), BodyContact(ends, radii))

@@ -103,6 +103,18 @@ def test_cli_simulates_a_split_seam_as_one_cloth(tmp_path, capsys):
     assert report["frames"] == 4 and report["vertices"] == fine.num_vertices
     assert report["torn_edges"] == 0 and report["stretch_max"] <= 0.3
     assert load_cache(tmp_path / "f.npz").positions.shape == (4, fine.num_vertices, 3)
+    assert report["contact"] is None  # no motion given: the body is not known
+    # With the proxy's motion it is kept out of the body too.
+    assert main([*embed_args, "--motion", str(tmp_path / "spin.bvh")]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["contact"]["margin"] > 0 and report["penetration_max_mm"] == 0.0
+    assert report["torn_edges"] == 0
+    assert main([*embed_args, "--motion", str(tmp_path / "spin.bvh"), "--no-contact"]) == 0
+    measured = json.loads(capsys.readouterr().out)
+    assert measured["contact"] is None and "penetration_max_mm" in measured
+    write_bvh(tmp_path / "spin6.bvh", spin_motion(6))
+    assert main([*embed_args, "--motion", str(tmp_path / "spin6.bvh")]) == 2
+    assert "6 frames, the proxy's cache 4" in capsys.readouterr().err
     # A cache of another mesh is refused, naming the file.
     save_mesh(tmp_path / "other.obj", frustum_skirt(20, 12))
     embed_args[4] = str(tmp_path / "other.obj")

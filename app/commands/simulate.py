@@ -10,9 +10,12 @@ onto the mannequin) or a procedural kind (``dance``, ``twirl``...). Writes the c
 report beside it (``CACHE.report.json``).
 
 Embed a detailed garment in a simulated proxy instead (``core.sim.embed``; reports the
-garment's edge stretch, compression and tears)::
+garment's edge stretch, compression and tears). With the proxy's ``--motion`` (and body), the
+garment is also kept out of the body's capsules, as the pipeline's embedded target is, and the
+report gives its penetration::
 
-    dng simulate --garment TARGET.obj --embed-in PROXY.obj PROXY_CACHE.npz --out CACHE.npz
+    dng simulate --garment TARGET.obj --embed-in PROXY.obj PROXY_CACHE.npz [--motion M.bvh
+                 [--no-contact]] --out CACHE.npz
 
 Import a cache simulated elsewhere (OBJ-sequence folder, ``.pc2``, ``.mdd``, ``.npz``)::
 
@@ -25,13 +28,15 @@ import argparse
 import contextlib
 import json
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
+from core.body.colliders import penetration_depths, posed_garment_capsules
 from core.body.mannequin import make_body
-from core.body.shape import MANNEQUIN_JOINTS, BodyShape
-from core.body.skinning import pose_body
+from core.body.shape import MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
+from core.body.skinning import motion_arrays, pose_body
 from core.errors import InputError
 from core.fileio import write_json
 from core.mesh import MESH_SUFFIXES, load_mesh, weld_mesh
@@ -66,6 +71,11 @@ def register(subparsers) -> None:
     p.add_argument(
         "--embed-in", nargs=2, metavar=("PROXY", "CACHE"),
         help="drive the garment by this proxy mesh's simulation (its cache) instead",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-contact", action="store_true",
+        help="with --embed-in and --motion: measure the garment's penetration into the body "
+        "but do not keep it out",
     )  # fmt: skip
     p.add_argument("--out", required=True, help="cache to write (.npz)")
     p.add_argument("--frames", type=int, default=150, help="procedural motion: frames (150)")
@@ -165,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     if args.embed_in:
-        return _embed(args, garment, out)
+        return _embed(args, garment, out, shape)
 
     if args.quality not in QUALITY:
         raise InputError(f"unknown --quality {args.quality!r}; choose one of {', '.join(QUALITY)}")
@@ -235,10 +245,11 @@ def _write_report(args: argparse.Namespace, out: Path, data: dict, summary: str)
     return 0
 
 
-def _embed(args: argparse.Namespace, garment, out: Path) -> int:
-    """The garment embedded in a simulated proxy: its cache, and its strain as a report."""
+def _embed(args: argparse.Namespace, garment, out: Path, shape: BodyShape) -> int:
+    """The garment embedded in a simulated proxy: its cache, and its strain as a report; with
+    ``--motion``, kept out of the body's capsules, with its penetration reported."""
 
-    from core.sim.embed import drive, embed, strain_stats
+    from core.sim.embed import BodyContact, drive, embed, strain_stats
 
     proxy_file, cache_file = args.embed_in
     proxy, _ = load_mesh(proxy_file)
@@ -253,15 +264,39 @@ def _embed(args: argparse.Namespace, garment, out: Path) -> int:
     positions = cache.positions
     if cache.num_vertices == proxy.num_vertices:  # a cache of the split file: weld it too
         positions = positions[:, np.unique(index, return_index=True)[1]]
+    contact = None
+    if args.motion is not None:
+        motion = _motion(args, shape)
+        if motion.num_frames != cache.num_frames:
+            raise InputError(
+                f"--motion has {motion.num_frames} frames, the proxy's cache {cache.num_frames}: "
+                "give the motion the proxy was simulated under",
+                cache_file,
+            )
+        rotations, roots = motion_arrays(mannequin_skeleton(shape), motion)
+        top = float(welded.vertices[:, 1].max())
+        contact = BodyContact(*posed_garment_capsules(shape, rotations, roots, top))
     e = embed(garment.vertices, welded.vertices, welded.faces, target_faces=garment.faces)
-    moved = drive(e, positions)
+    moved = drive(e, positions, None if args.no_contact else contact)
     params = {**cache.params, "target_mode": "embed", "proxy_cache": str(cache_file)}
     save_cache(out, SimCache(moved, garment.faces, cache.fps, params))
     stats = strain_stats(moved, garment.vertices, garment.faces)
+    body = {"contact": None}
+    summary = ""
+    if contact is not None:
+        depth = penetration_depths(moved, contact.capsule_ends, contact.radii)
+        body = {
+            "contact": None if args.no_contact else asdict(contact.settings),
+            "penetration_mean_mm": float(depth.mean() * 1e3),
+            "penetration_max_mm": float(depth.max() * 1e3),
+            "penetrating_fraction": float((depth > 0).mean()),
+        }
+        kept = "not kept out of the body" if args.no_contact else "kept out of the body"
+        summary = f", {kept} (penetration max {body['penetration_max_mm']:.1f} mm)"
     data = {
         "cache": str(out), "garment": args.garment, "proxy": str(proxy_file),
         "proxy_cache": str(cache_file), "frames": len(moved), "vertices": garment.num_vertices,
-        **stats.as_dict(),
+        **stats.as_dict(), **body,
     }  # fmt: skip
     return _write_report(
         args,
@@ -270,7 +305,7 @@ def _embed(args: argparse.Namespace, garment, out: Path) -> int:
         f"{out}: {len(moved)} frames x {garment.num_vertices} vertices embedded in "
         f"{proxy_file}, stretch max {stats.stretch_max:.3f} p99 {stats.stretch_p99:.3f}, "
         f"compression max {stats.compression_max:.3f} p99 {stats.compression_p99:.3f}, "
-        f"torn edges {stats.torn_edges}",
+        f"torn edges {stats.torn_edges}{summary}",
     )
 
 

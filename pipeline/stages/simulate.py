@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from core.body.colliders import body_capsules, penetration_depths, pose_capsules
+from core.body.colliders import penetration_depths, posed_garment_capsules
 from core.body.mannequin import make_body
 from core.body.shape import mannequin_skeleton
-from core.body.skinning import pose_body
+from core.body.skinning import motion_arrays, pose_body
 from core.camera import make_camera
 from core.errors import InputError
 from core.fileio import write_json
@@ -21,7 +21,6 @@ from core.mesh import Mesh, load_mesh
 from core.project import Project
 from core.shading import contact_sheet, render_views, write_png
 from core.sim import SimCache, load_cache, save_cache
-from core.skeleton import forward_kinematics, skinning_transforms
 from pipeline.config import Log, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import load_project_motion
 
@@ -79,8 +78,17 @@ def stage_simulate(
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
     """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
     simulation: edge stretch and compression against the rest garment, tears, penetration into
-    the body colliders; ``sheet.png`` shows the proxy and the target on the body."""
-    from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, drive, embed, strain_stats
+    the body's capsules (those the simulation collides with, which ``config.target_contact``
+    keeps the target out of); ``sheet.png`` shows the proxy and the target on the body."""
+    from core.sim.embed import (
+        FRAME_SMOOTHING_M,
+        SMOOTHING_M,
+        BodyContact,
+        ContactSettings,
+        drive,
+        embed,
+        strain_stats,
+    )
 
     target_file = project.path("garment", "target.obj")
     proxy_file = project.path("proxy", "positions.obj")
@@ -92,23 +100,26 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         "smoothing_m": SMOOTHING_M,
         "frame_smoothing_m": FRAME_SMOOTHING_M,
         "body": asdict(config.body),
+        "contact": asdict(ContactSettings()) if config.target_contact else None,
     }
 
     def work(out: Path) -> list[str]:
         target, _ = load_mesh(target_file)
         proxy, _ = load_mesh(proxy_file)
         cache = load_cache(proxy_cache)
+        motion = load_project_motion(project, motion_name)
+        rotations, roots = motion_arrays(mannequin_skeleton(config.body), motion)
+        top = float(proxy.vertices[:, 1].max())
+        ends, radii = posed_garment_capsules(
+            config.body, rotations, roots, top, sim_config(config).arm_colliders
+        )
+        contact = BodyContact(ends, radii) if config.target_contact else None
         start = time.perf_counter()
         embedding = embed(target.vertices, proxy.vertices, proxy.faces, target_faces=target.faces)
-        positions = drive(embedding, cache.positions)
+        positions = drive(embedding, cache.positions, contact)
         seconds = time.perf_counter() - start
         strain = strain_stats(positions, target.vertices, target.faces)
-        motion = load_project_motion(project, motion_name)
-        skeleton = mannequin_skeleton(config.body)
-        pos, rot = forward_kinematics(skeleton, motion.rotations, motion.root_positions)
-        capsules = body_capsules(skeleton, config.body)
-        ends = pose_capsules(capsules, skinning_transforms(skeleton, pos, rot))
-        depth = penetration_depths(positions, ends, capsules.radii)
+        depth = penetration_depths(positions, ends, radii)
         params_out = {**cache.params, "target_mode": "embed", "proxy_cache": str(proxy_cache)}
         save_cache(out / "cache.npz", SimCache(positions, target.faces, cache.fps, params_out))
         rows = [("proxy", cache.positions, cache.faces), ("target", positions, target.faces)]
@@ -126,6 +137,7 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
             "penetration_mean_mm": float(depth.mean() * 1e3),
             "penetration_max_mm": float(depth.max() * 1e3),
             "penetrating_fraction": float((depth > 0).mean()),
+            "contact": params["contact"],
             "finite": bool(np.isfinite(positions).all()),
             "sheet": "sheet.png",
         }
@@ -134,7 +146,8 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
             f"  {motion_name}/target (embedded in the proxy): {report['frames']} frames x "
             f"{report['vertices']} vertices, {report['ms_per_frame']:.1f} ms/frame, stretch max "
             f"{strain.stretch_max:.3f} p99 {strain.stretch_p99:.3f}, "
-            f"penetration {report['penetration_mean_mm']:.2f} mm"
+            f"penetration mean {report['penetration_mean_mm']:.2f} max "
+            f"{report['penetration_max_mm']:.1f} mm"
         )
         return ["cache.npz", "report.json", "sheet.png"]
 
