@@ -47,7 +47,9 @@ _SECONDS_PER = {
     # (14 s for 100 frames, 19 s for 150, 34 s for 300)
     "sim_clip": 4.0,
     "sim_frame": 0.10,
-    "embed_frame": 0.17,  # the detailed target embedded in the proxy's simulation, per frame
+    # the detailed target embedded in the proxy's simulation and kept out of the body, per frame
+    # (164 s for the quick preset's 600 frames)
+    "embed_frame": 0.27,
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
     "gt_sample": 0.14,  # ground-truth renders per training sample (3 frames) at 128 px
     "j2c_step": 0.0223,  # Joint2Coarse, per step of the paper's model (ours trains beside it)
