@@ -113,6 +113,9 @@ class Embedding:
         point on the proxy
     offset : (Vt, 3) float64, each target vertex relative to its point at rest
     smoothing : (Vp, Vp) scipy.sparse.csr_matrix float64, smoothing of the deformation field
+    target_edges : (Et, 2) int64, the target's edges (empty without its faces)
+    target_lengths : (Et,) float64, their rest lengths
+    anchor : (Vt,) int64, each target vertex's most weighted proxy vertex
     """
 
     faces: np.ndarray
@@ -122,11 +125,8 @@ class Embedding:
     offset: np.ndarray
     smoothing: sp.csr_matrix
     target_edges: np.ndarray
-    """(Et, 2) int64: the target's edges (empty without its faces)."""
     target_lengths: np.ndarray
-    """(Et,) float64: their rest lengths."""
     anchor: np.ndarray
-    """(Vt,) int64: each target vertex's most weighted proxy vertex."""
 
 
 @dataclass(frozen=True)
