@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from core.body.colliders import simulation_colliders
 from core.errors import InputError
 from core.fileio import write_json
 from core.mesh import load_mesh
@@ -165,7 +166,7 @@ def evaluate_on_motion(
         predict_proxy,
         vertex_errors,
     )
-    from training.joint2coarse.collision import penetration_summary, simulation_colliders
+    from training.joint2coarse.collision import penetration_summary
 
     torch.set_num_threads(config.torch_threads)
     model_file = project.path("joint2coarse", "joint2coarse.pt")

@@ -9,11 +9,11 @@ import shutil
 import numpy as np
 import pytest
 
-from core.body.colliders import body_capsules
+from core.body.colliders import body_capsules, simulation_colliders
 from core.body.shape import CHEST_LEVEL, BodyShape, mannequin_skeleton
 from core.motion.procedural import make_motion
 from training.joint2coarse import push_out_of_capsules
-from training.joint2coarse.collision import penetration_summary, simulation_colliders
+from training.joint2coarse.collision import penetration_summary
 
 
 @pytest.fixture

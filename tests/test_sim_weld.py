@@ -112,6 +112,8 @@ def test_cli_simulates_a_split_seam_as_one_cloth(tmp_path, capsys):
     assert main([*embed_args, "--motion", str(tmp_path / "spin.bvh"), "--no-contact"]) == 0
     measured = json.loads(capsys.readouterr().out)
     assert measured["contact"] is None and "penetration_max_mm" in measured
+    assert main([*embed_args, "--no-contact"]) == 2  # nothing to measure without the motion
+    assert "--no-contact goes with --embed-in and --motion" in capsys.readouterr().err
     write_bvh(tmp_path / "spin6.bvh", spin_motion(6))
     assert main([*embed_args, "--motion", str(tmp_path / "spin6.bvh")]) == 2
     assert "6 frames, the proxy's cache 4" in capsys.readouterr().err

@@ -10,6 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
+from core.body.colliders import simulation_colliders
 from core.body.mannequin import make_body
 from core.body.skinning import pose_body
 from core.errors import InputError
@@ -73,8 +74,6 @@ def run_proxy(args: argparse.Namespace) -> int:
     proxy = load_mesh(project.path("proxy", "positions.obj"))[0]
     capsules = radii = None
     if args.push_out:  # the capsules the project's simulation collides with
-        from training.joint2coarse.collision import simulation_colliders
-
         top = float(proxy.vertices[:, 1].max())
         arms = sim_config(config).arm_colliders
         capsules, radii = simulation_colliders(config.body, motion, top, arms)

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from core.body.colliders import penetration_depths, posed_garment_capsules
+from core.body.colliders import penetration_depths, simulation_colliders
 from core.body.mannequin import make_body
-from core.body.shape import MANNEQUIN_JOINTS, BodyShape, mannequin_skeleton
-from core.body.skinning import motion_arrays, pose_body
+from core.body.shape import MANNEQUIN_JOINTS, BodyShape
+from core.body.skinning import pose_body
 from core.errors import InputError
 from core.fileio import write_json
 from core.mesh import MESH_SUFFIXES, load_mesh, weld_mesh
@@ -174,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=2) if args.json else f"imported {report}")
         return 0
 
+    if args.no_contact and not (args.embed_in and args.motion):
+        raise InputError("--no-contact goes with --embed-in and --motion (the body to measure)")
     if args.embed_in:
         return _embed(args, garment, out, shape)
 
@@ -273,9 +275,8 @@ def _embed(args: argparse.Namespace, garment, out: Path, shape: BodyShape) -> in
                 "give the motion the proxy was simulated under",
                 cache_file,
             )
-        rotations, roots = motion_arrays(mannequin_skeleton(shape), motion)
         top = float(welded.vertices[:, 1].max())
-        contact = BodyContact(*posed_garment_capsules(shape, rotations, roots, top))
+        contact = BodyContact(*simulation_colliders(shape, motion, top))
     e = embed(garment.vertices, welded.vertices, welded.faces, target_faces=garment.faces)
     moved = drive(e, positions, None if args.no_contact else contact)
     params = {**cache.params, "target_mode": "embed", "proxy_cache": str(cache_file)}

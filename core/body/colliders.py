@@ -212,6 +212,37 @@ def posed_garment_capsules(
     return pose_capsules(capsules, skinning_transforms(skeleton, pos, rot)), capsules.radii
 
 
+def simulation_colliders(
+    shape: BodyShape,
+    motion,
+    garment_top: float,
+    arm_colliders: bool | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The capsules the cloth simulation collides with, posed for every frame of ``motion``.
+
+    The project's one body collider (:mod:`core.body.colliders`), with the simulation's rule
+    for the arms (:func:`core.body.colliders.arms_collide`): they collide only when asked to
+    (``arm_colliders``) or, when that is None, when the garment reaches above the chest.
+
+    Parameters
+    ----------
+    shape : BodyShape
+    motion : core.motion.Motion on the mannequin's joints, T frames
+    garment_top : float
+        Highest rest-pose height (metres) of the garment (the proxy's rest positions).
+    arm_colliders : bool or None
+        :attr:`core.sim.SimConfig.arm_colliders`.
+
+    Returns
+    -------
+    ends : (T, K, 2, 3) float32
+        Posed capsule end points.
+    radii : (K,) float32
+    """
+    rotations, roots = motion_arrays(mannequin_skeleton(shape), motion)
+    return posed_garment_capsules(shape, rotations, roots, garment_top, arm_colliders)
+
+
 def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Signed distance from points to the union of capsules (negative inside).
 

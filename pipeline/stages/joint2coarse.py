@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from core.body.colliders import simulation_colliders
 from core.body.mannequin import make_body
 from core.body.skinning import pose_body
 from core.camera import make_camera
@@ -206,7 +207,7 @@ def _evaluate_joint2coarse(
         reconstruct_proxy,
         vertex_errors,
     )
-    from training.joint2coarse.collision import penetration_summary, simulation_colliders
+    from training.joint2coarse.collision import penetration_summary
 
     motion = load_project_motion(project, name)
     joints, root_rot = joint2coarse_inputs(motion)

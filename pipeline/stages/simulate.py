@@ -10,10 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core.body.colliders import penetration_depths, posed_garment_capsules
+from core.body.colliders import penetration_depths, simulation_colliders
 from core.body.mannequin import make_body
-from core.body.shape import mannequin_skeleton
-from core.body.skinning import motion_arrays, pose_body
+from core.body.skinning import pose_body
 from core.camera import make_camera
 from core.errors import InputError
 from core.fileio import write_json
@@ -108,10 +107,9 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         proxy, _ = load_mesh(proxy_file)
         cache = load_cache(proxy_cache)
         motion = load_project_motion(project, motion_name)
-        rotations, roots = motion_arrays(mannequin_skeleton(config.body), motion)
         top = float(proxy.vertices[:, 1].max())
-        ends, radii = posed_garment_capsules(
-            config.body, rotations, roots, top, sim_config(config).arm_colliders
+        ends, radii = simulation_colliders(
+            config.body, motion, top, sim_config(config).arm_colliders
         )
         contact = BodyContact(ends, radii) if config.target_contact else None
         start = time.perf_counter()
