@@ -258,13 +258,14 @@ def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarra
     """
     p = np.asarray(points, np.float64)
     e = np.asarray(endpoints, np.float64)
-    a, ab = e[:, 0], e[:, 1] - e[:, 0]
+    r = np.asarray(radii, np.float64)
     out = np.full(len(p), np.inf)
-    for i0 in range(0, len(p), 4096):
-        q = p[i0 : i0 + 4096, None, :] - a[None]
-        t = np.clip(np.einsum("nkc,kc->nk", q, ab) / np.maximum((ab * ab).sum(1), 1e-18), 0, 1)
-        d = np.linalg.norm(q - t[..., None] * ab[None], axis=2) - np.asarray(radii)[None]
-        out[i0 : i0 + 4096] = d.min(axis=1)
+    for k in range(len(e)):  # one capsule at a time: (N, 3) arrays, no (N, K, 3) temporaries
+        a, ab = e[k, 0], e[k, 1] - e[k, 0]
+        q = p - a
+        t = np.clip(q @ ab / max(float(ab @ ab), 1e-18), 0.0, 1.0)
+        q -= t[:, None] * ab
+        np.minimum(out, np.sqrt(np.einsum("nc,nc->n", q, q)) - r[k], out=out)
     return out.astype(np.float32)
 
 
