@@ -63,6 +63,12 @@ class PipelineConfig:
         MotionSpec("cmu-01_01", "file", 150, path=str(CMU_CLIP), start_s=2.0),
     )
     """Unseen motions for evaluation; a file that is not on this machine is skipped."""
+    renderer_validation: str | None = None
+    """The renderers' validation motion (protocol V): one of ``joint2coarse_validation``'s, whose
+    target is made and rendered from cameras of its own (neither the training's nor the test
+    sets'). Every setting of our renderer and of the baselines is chosen on its figures; the
+    test motions (protocol U) and the training motion's unseen cameras (P) are only reported.
+    None: no validation split (the ``smoke`` preset)."""
     proxy_verts: int = 1000
     """Target vertex count of the derived proxy."""
     proxy_texture: int = 512
@@ -270,6 +276,7 @@ PRESETS: dict[str, PipelineConfig] = {
         renderer_steps=30,
         joint2coarse_extra=(MotionSpec("circle-walk", "circle-walk", 30, seed=2),),
         joint2coarse_validation=(MotionSpec("val-walk", "walk", 36, seed=4, speed=1.3),),
+        renderer_validation="val-walk",
         joint2coarse_compare=("paper", "ours"),
         joint2coarse_steps=(300, 300, 100),
     ),
@@ -295,6 +302,8 @@ PRESETS: dict[str, PipelineConfig] = {
             *LIBRARY_TRAIN,
         ),
         joint2coarse_validation=LIBRARY_VALIDATION,
+        # The renderers' validation split: real capture, like the test clip a user brings.
+        renderer_validation="val-cmu-01_03",
         # Our model drives the project, the paper's beside it on the same splits (report:
         # compare), chosen by validation on a fresh project (dng demo --out P; python
         # benchmarks/joint2coarse_validation.py P --set model=M --seeds 0 1): on the validation
@@ -379,6 +388,22 @@ def available_extra_motions(config: PipelineConfig) -> tuple[MotionSpec, ...]:
 def available_validation_motions(config: PipelineConfig) -> tuple[MotionSpec, ...]:
     """Joint2Coarse's validation motions whose files exist on this machine."""
     return on_this_machine(config.joint2coarse_validation)
+
+
+def renderer_validation_motion(config: PipelineConfig) -> MotionSpec | None:
+    """The renderers' validation motion (:attr:`PipelineConfig.renderer_validation`), None when
+    there is none or its file is not on this machine; InputError when it names no motion of
+    ``joint2coarse_validation``."""
+    name = config.renderer_validation
+    if name is None:
+        return None
+    spec = {m.name: m for m in config.joint2coarse_validation}.get(name)
+    if spec is None:
+        raise InputError(
+            f"renderer_validation {name!r} is not one of the validation motions "
+            f"({', '.join(m.name for m in config.joint2coarse_validation) or 'none'})"
+        )
+    return spec if on_this_machine((spec,)) else None
 
 
 def joint2coarse_splits(config: PipelineConfig) -> dict[str, list[str]]:

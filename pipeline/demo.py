@@ -21,6 +21,7 @@ from pipeline.config import (
     available_validation_motions,
     joint2coarse_config,
     renderer_config,
+    renderer_validation_motion,
 )
 from pipeline.deviations import as_json as deviations_json
 from pipeline.deviations import deviations_markdown, from_json, methods_markdown
@@ -97,13 +98,15 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     costs += [sim(m.frames) for m in available_extra_motions(config)]
     costs += [sim(m.frames) for m in available_validation_motions(config)]
     costs += [sim(m.frames) for m in tests]
+    validation = renderer_validation_motion(config) if config.simulate_target else None
+    checked = [validation] if validation else []  # protocol V
     if config.simulate_target:
-        costs += [target * m.frames for m in tests]
+        costs += [target * m.frames for m in [*checked, *tests]]
         train_samples = -(-config.train_motion.frames // config.frame_stride)
         costs += [c["gt_sample"] * pixels * train_samples * config.views_per_frame]
     costs += [c["j2c_step"] * joint2coarse_config(config).total_steps]
     if config.simulate_target:
-        evaluated = [*tests, config.train_motion]  # protocol U, then P
+        evaluated = [*checked, *tests, config.train_motion]  # protocols V, U, then P
         test_samples = [-(-m.frames // config.test_stride) * config.test_views for m in evaluated]
         costs += [c["test_sample"] * pixels * n for n in test_samples]
         render = c["render_step"] * pixels * renderer_config(config).steps
@@ -215,8 +218,10 @@ def run_demo(
     sims += [(m.name, "proxy") for m in available_extra_motions(config)]
     sims += [(m.name, "proxy") for m in available_validation_motions(config)]
     sims += [(name, "proxy") for name in tests]
+    validation = renderer_validation_motion(config) if config.simulate_target else None
+    checked = [validation.name] if validation else []  # the renderers' validation motion
     if config.simulate_target:
-        sims += [(name, "target") for name in tests]
+        sims += [(name, "target") for name in [*checked, *tests]]
     progress = _Progress(stage_costs(config))
     log = progress.log
     if len(tests) < len(config.test_motions):
@@ -242,6 +247,11 @@ def run_demo(
     j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
     renderer = baselines = evaluation = videos = None
     if config.simulate_target:
+        for name in checked:
+            progress.stage(
+                f"validation set {name} (cameras of its own)",
+                lambda n=name: stage_testset(project, config, n, log, validation=True),
+            )
         for name in [*tests, train]:
             seen = " (the training motion)" if name == train else ""
             progress.stage(
@@ -262,7 +272,9 @@ def run_demo(
                 f"ablation {name}", lambda n=name: stage_ablation(project, config, n, log)
             )
         evaluation = progress.stage(
-            "evaluation (protocols U and P, unseen cameras)",
+            "evaluation (protocols V, U and P, unseen cameras)"
+            if checked
+            else "evaluation (protocols U and P, unseen cameras)",
             lambda: stage_eval(project, config, log),
         )
         videos = progress.stage(
@@ -406,6 +418,21 @@ def _renderer_markdown(report: dict) -> list[str]:
         )
     if not ev:
         return lines
+    v = ev.get("validation")
+    if v:
+        lines += [
+            "",
+            "## Evaluation: the validation motion (protocol V)",
+            "",
+            f"`{v['motion']}`, one of Joint2Coarse's validation motions, from cameras of its own "
+            f"(`testset/{v['motion']}/`, a camera stream no test set uses): every setting of our "
+            "renderer and of the baselines is chosen on these figures; the test motions and the "
+            "training motion's unseen cameras below are only reported. Same metrics as below.",
+            "",
+            *_metrics_table(v["methods"]),
+        ]
+        ratios = _ratio_sentence(v["methods"])
+        lines += ["", ratios] if ratios else []
     lines += [
         "",
         "## Evaluation: unseen motions from unseen cameras (protocol U)",
@@ -474,7 +501,7 @@ def _renderer_markdown(report: dict) -> list[str]:
                     f"| {motion} | {name} | {m['fid']['value']:.2f} | {m['video_fid']['value']:.2f} |"
                 )
     lines += ["", "Ground truth (top row) and every method on the same frames:", ""]
-    shown = [*ev["motions"], *([p["motion"]] if p else [])]
+    shown = [*([v["motion"]] if v else []), *ev["motions"], *([p["motion"]] if p else [])]
     lines += [f"![{m}](eval/compare-{m}.png)" for m in shown]
     videos = report.get("videos") or {}
     if videos:

@@ -287,7 +287,7 @@ def finetune_body_shape(
     sub = Project(sub_root)
     sub_root.mkdir(parents=True, exist_ok=True)
     # The training motion only: test motions would cost simulations the fine-tune does not use.
-    sub_config = replace(config, body=shape, test_motions=())
+    sub_config = replace(config, body=shape, test_motions=(), renderer_validation=None)
     settings = {k: v for k, v in parent.settings().items() if k != "pipeline"}
     sub.save_settings(
         {**settings, "pipeline": sub_config.as_params(), "finetune_of": str(root.resolve())}

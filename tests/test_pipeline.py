@@ -33,6 +33,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         "cmu-01_01-target",
         "circle-walk-proxy",
         "val-walk-proxy",
+        "val-walk-target",  # the renderers' validation motion
     }
     for name, sim in report["simulation"].items():
         assert sim["finite"], name
@@ -67,7 +68,7 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
     # The ground truth names its mode, its strain and shows a contact sheet per clip.
     assert "## Ground truth: the detailed target" in md and "embedded in the proxy" in md
-    for clip in ("dance", "twirl", "cmu-01_01"):
+    for clip in ("dance", "val-walk", "twirl", "cmu-01_01"):
         target = report["simulation"][f"{clip}-target"]
         assert target["mode"] == "embed" and 0 <= target["strain_p99"] <= target["strain_max"]
         assert (out / "sim" / f"{clip}-target" / "sheet.png").is_file()
@@ -80,6 +81,15 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert p["motion"] == "dance" and set(p["methods"]) == set(ev["methods"])
     assert 0 < p["mse_ratio_ours_to_dnr"] and 0 < p["methods"]["ours"]["mse"]["mean"]
     assert (out / "testset" / "dance" / "samples.json").is_file()
+    # V: the validation motion from cameras of its own, every method scored, apart from U's.
+    v = ev["validation"]
+    assert v["motion"] == "val-walk" and set(v["methods"]) == set(ev["methods"])
+    assert 0 < v["mse_masked_ratio_ours_to_dnr"] and "val-walk" not in ev["motions"]
+    assert "(protocol V)" in md and "](eval/compare-val-walk.png)" in md
+    from pipeline.stages.dataset import VALIDATION_CAMERAS
+
+    stage = json.loads((out / "testset/val-walk/stage.json").read_text())
+    assert stage["params"]["cameras"] == VALIDATION_CAMERAS  # a stream no test set uses
     assert "(protocol P, the paper's)" in md and "](eval/compare-dance.png)" in md
     assert "(discriminator), falling linearly to zero from step 15." in md  # of 30
     assert "- baseline `dnr`: 30 steps" in md and "learning rates constant" in md

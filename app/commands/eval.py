@@ -13,7 +13,7 @@ from pathlib import Path
 
 from core.errors import InputError
 from core.project import Project
-from pipeline.config import available_test_motions, project_config
+from pipeline.config import available_test_motions, project_config, renderer_validation_motion
 from pipeline.joint2coarse_eval import eval_motion, evaluate_on_motion, format_report
 from pipeline.stages.ablations import check_ablation, stage_ablation
 from pipeline.stages.dataset import stage_testset
@@ -94,6 +94,20 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_table(methods: dict) -> None:
+    """One line per method: garment-region MSE, full-frame MSE (mean ± std), PSNR, SSIM,
+    flicker."""
+    print(
+        f"{'method':44s} {'MSE garment':>12s} {'MSE':>16s} {'PSNR':>7s} {'SSIM':>7s} {'flicker':>8s}"
+    )
+    for name, m in methods.items():
+        print(
+            f"{name:44s} {m['mse_masked']['mean']:12.4f} {m['mse']['mean']:.4f} ± "
+            f"{m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} {m['ssim']['mean']:7.4f} "
+            f"{m['flicker']['mean']:8.4f}"
+        )
+
+
 def _print_ratios(methods: dict, indent: str) -> None:
     """Ours / DNR (``ours_to_dnr``, from the methods' figures: an eval report reused from before
     the garment-region ratios has them too): the garment region first, then full frame, on
@@ -127,6 +141,10 @@ def run_renderers(args: argparse.Namespace) -> int:
         project.save_settings(settings)  # the next dng eval (and the demo) keep them
     # With --json, stdout carries only the report (a pipeline parses it); progress goes to stderr.
     log = (lambda message: print(message, file=sys.stderr, flush=True)) if args.json else print
+    validation = renderer_validation_motion(config)
+    if validation:  # protocol V: where the settings are chosen
+        stage_simulate(project, config, validation.name, "target", log)
+        stage_testset(project, config, validation.name, log, validation=True)
     for m in available_test_motions(config):
         stage_simulate(project, config, m.name, "target", log)
         stage_testset(project, config, m.name, log)
@@ -137,15 +155,13 @@ def run_renderers(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
-    print(
-        f"{'method':44s} {'MSE garment':>12s} {'MSE':>16s} {'PSNR':>7s} {'SSIM':>7s} {'flicker':>8s}"
-    )
-    for name, m in report["methods"].items():
-        print(
-            f"{name:44s} {m['mse_masked']['mean']:12.4f} {m['mse']['mean']:.4f} ± "
-            f"{m['mse']['std']:.4f} {m['psnr']['mean']:7.2f} {m['ssim']['mean']:7.4f} "
-            f"{m['flicker']['mean']:8.4f}"
-        )
+    v = report.get("validation")
+    if v:
+        print(f"protocol V ({v['motion']}, the validation motion, cameras of its own):")
+        _print_table(v["methods"])
+        _print_ratios(v["methods"], "")
+        print("protocol U (the test motions, unseen cameras):")
+    _print_table(report["methods"])
     _print_ratios(report["methods"], "")
     p = report.get("protocol_p")
     if p:

@@ -23,6 +23,9 @@ from training.dataset import sample_name
 #: Version of ``samples.json``: 2 names the ground truth's hash (a project rendered before it
 #: renders again, so the stages trained on a stale ground truth rerun too).
 INDEX_VERSION = 2
+#: Random camera streams (``random_cameras(seed=(config.seed, STREAM, t))``) of the test sets
+#: and of the renderers' validation set; the training set's is ``(config.seed, t)``.
+TEST_CAMERAS, VALIDATION_CAMERAS = 1, 2
 
 # ---------------------------------------------------------------------------------- data set
 
@@ -151,14 +154,22 @@ def _sample_files(samples: list[dict]) -> list[str]:
 
 
 def stage_testset(
-    project: Project, config: PipelineConfig, motion_name: str, log: Log = quiet
+    project: Project,
+    config: PipelineConfig,
+    motion_name: str,
+    log: Log = quiet,
+    *,
+    validation: bool = False,
 ) -> Path:
     """Ground truth of an unseen motion from unseen cameras: ``testset/MOTION/``.
 
     Same layout as the training set (:func:`stage_dataset`), with cameras from another random
     stream (``seed=(config.seed, 1, t)``), ``config.test_views`` per centre frame, every
-    ``config.test_stride`` frames. Needs the motion's target (``sim/MOTION-target``).
+    ``config.test_stride`` frames. The renderers' validation motion (``validation``) has a
+    stream of its own (``seed=(config.seed, 2, t)``), so it shares no camera with a test set.
+    Needs the motion's target (``sim/MOTION-target``).
     """
+    stream = VALIDATION_CAMERAS if validation else TEST_CAMERAS
     target_cache = project.path(f"sim/{motion_name}-target", "cache.npz")
     stage = f"testset/{motion_name}"
     params = {
@@ -168,14 +179,16 @@ def stage_testset(
         "size": config.image_size,
         "seed": config.seed,
         "body": asdict(config.body),
+        **({"cameras": stream} if validation else {}),
     }
 
     def work(out: Path) -> list[str]:
         samples = _render_samples(
-            project, config, motion_name, out, seed=(config.seed, 1), views=config.test_views,
+            project, config, motion_name, out, seed=(config.seed, stream), views=config.test_views,
             stride=config.test_stride, desc=f"ground truth {motion_name}",
         )  # fmt: skip
-        log(f"  {motion_name}: {len(samples)} test samples from unseen cameras")
+        what = "validation samples from cameras of its own" if validation else "test samples"
+        log(f"  {motion_name}: {len(samples)} {what} (unseen cameras)")
         return ["samples.json", *_sample_files(samples)]
 
     project.run_stage(

@@ -1,7 +1,8 @@
-"""Stage ``eval``: every method scored from unseen cameras under two protocols
-(``eval/report.json``): **U**, the unseen test motions (beyond the paper), and **P**, the
+"""Stage ``eval``: every method scored from unseen cameras (``eval/report.json``): **V**, the
+renderers' validation motion from cameras of its own, where every renderer and baseline setting
+is chosen; then, only reported, **U**, the unseen test motions (beyond the paper), and **P**, the
 paper's: the training motion itself, from cameras the training never saw. Every method renders
-Joint2Coarse's proxy in both, and the simulated proxy beside it (the renderers alone)."""
+Joint2Coarse's proxy in each, and the simulated proxy beside it (the renderers alone)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,13 @@ from pathlib import Path
 from core.fileio import write_json
 from core.project import Project
 from core.shading import contact_sheet, write_png
-from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
+from pipeline.config import (
+    Log,
+    PipelineConfig,
+    available_test_motions,
+    quiet,
+    renderer_validation_motion,
+)
 from pipeline.stages.ablations import ablation_label, ablation_project, check_ablation
 from training.dataset import GarmentDataset
 
@@ -66,10 +73,10 @@ def ours_to_dnr(methods: dict) -> dict:
 
 
 def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> dict:
-    """Score every method on every test motion (protocol U: ``methods``, ``motions``) and on the
-    training motion (protocol P: ``protocol_p``), each from unseen cameras (``testset/``):
-    ``eval/report.json`` and ``eval/compare-MOTION.png`` (ground truth and each method on the
-    same frames)."""
+    """Score every method on the renderers' validation motion (protocol V: ``validation``), on
+    every test motion (protocol U: ``methods``, ``motions``) and on the training motion
+    (protocol P: ``protocol_p``), each from unseen cameras (``testset/``): ``eval/report.json``
+    and ``eval/compare-MOTION.png`` (ground truth and each method on the same frames)."""
     import torch
 
     from training.baselines import load_for_evaluation
@@ -78,10 +85,12 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
 
     tests = [m.name for m in available_test_motions(config)]
     train = config.train_motion.name
+    validation = renderer_validation_motion(config)
+    checked = [validation.name] if validation else []
     methods = eval_methods(project, config)
     eval_cfg = EvalConfig(inception_path=config.inception_path)
     inputs = [path for path, _, _ in methods.values()]
-    for name in [*tests, train]:
+    for name in [*checked, *tests, train]:
         # protocol P scores the methods of this project's own proxy (an ablation's
         # sub-project with another proxy has no test set of the training motion)
         for root in {r for _, _, r in methods.values()} if name != train else {project.root}:
@@ -104,13 +113,15 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
         report: dict = {"methods": {}, "motions": {}, "test_motions": tests}
         outputs = []
         own = {n: m for n, m in methods.items() if m[2] == project.root}
-        for motion in [*tests, train]:
+        for motion in [*checked, *tests, train]:
             scored = methods if motion != train else own
             data = {
                 (root, src): GarmentDataset(root, source=src, split=motion)
                 for _, src, root in scored.values()
             }
-            protocol = "P, the training motion" if motion == train else "U"
+            protocol = {train: "P, the training motion"}.get(
+                motion, "V, validation" if motion in checked else "U"
+            )
             log(
                 f"  evaluating {motion} ({protocol}): {len(data[(project.root, 'joint2coarse')])}"
                 f" samples x {len(scored)} methods"
@@ -130,11 +141,14 @@ def stage_eval(project: Project, config: PipelineConfig, log: Log = quiet) -> di
                 for name, r in results.items()
             }
             for name, r in results.items():
-                for metric, values in r.metrics.values.items():
-                    (seen if motion == train else totals)[name].add(metric, values)
+                if motion in tests or motion == train:
+                    for metric, values in r.metrics.values.items():
+                        (seen if motion == train else totals)[name].add(metric, values)
                 scores[name].update(fid_scores(r, eval_cfg))
-            if motion != train:
+            if motion in tests:
                 report["motions"][motion] = scores
+            elif motion in checked:
+                report["validation"] = {"motion": motion, "methods": scores, **ours_to_dnr(scores)}
             tiles, labels = [], []
             for row_name, row in (
                 ("ground truth", gt_tiles),

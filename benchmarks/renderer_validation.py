@@ -1,0 +1,128 @@
+"""A renderer or a baseline on a project's validation motion: the figures its settings are chosen on.
+
+Usage: ``python benchmarks/renderer_validation.py PROJECT --method ours|pix2pix|dnr|dnr-gan
+[--set KEY=VALUE ...] [--seeds 0 1] [--json]``
+
+Trains the method as the project would (its preset and settings; ``--set`` changes one field of
+the method's configuration, as ``dng train renderer`` / ``dng train baselines`` read it, e.g.
+``--set lr_g=2e-4 --set lr_decay_from=0.5``) on the project's data set, once per ``--seeds``,
+in a temporary folder: the project's models are left as they are. Then scores it on the
+renderers' validation motion (protocol V, ``renderer_validation``: its own cameras) on
+Joint2Coarse's proxy and on the simulated one, and prints the garment region's MSE and SSIM,
+the full frame's MSE and the flicker (means over the samples), per seed and over the seeds.
+
+The validation motion's target and images are made in the project first when they are missing
+(as ``dng eval`` makes them; a project made before the split gets ``--motion NAME``, one of its
+Joint2Coarse validation motions). The test motions are never scored here: choose on these
+figures, then report the test split once with ``dng eval``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from app.commands.train import parse_setting
+from core.errors import InputError
+from core.project import Project
+from pipeline.config import (
+    baseline_config,
+    project_config,
+    renderer_config,
+    renderer_validation_motion,
+)
+from pipeline.stages.dataset import stage_testset
+from pipeline.stages.simulate import stage_simulate
+from training.baselines import KINDS, load_for_evaluation, train_baseline
+from training.dataset import GarmentDataset
+from training.evaluate import EvalConfig, evaluate_motion
+from training.renderer.train import train_renderer
+
+METRICS = ("mse_masked", "ssim_masked", "mse", "flicker")
+SOURCES = {"joint2coarse": "Joint2Coarse's proxy", "sim": "simulated proxy"}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("project")
+    ap.add_argument("--method", required=True, choices=["ours", *KINDS])
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--seeds", type=int, nargs="+", default=None, help="default: the project's")
+    ap.add_argument("--motion", help="the validation motion, for a project made before the split")
+    ap.add_argument("--json", action="store_true", help="print only JSON")
+    args = ap.parse_args()
+
+    torch.set_num_threads(1)
+    project = Project(args.project)
+    config = project_config(project)
+    if args.motion:
+        config = replace(config, renderer_validation=args.motion)
+    try:
+        validation = renderer_validation_motion(config)
+    except InputError as exc:
+        ap.error(str(exc))
+    if validation is None:
+        ap.error("the project has no renderer validation motion: give --motion NAME")
+    log = (lambda _: None) if args.json else print
+    stage_simulate(project, config, validation.name, "target", log)
+    stage_testset(project, config, validation.name, log, validation=True)
+
+    changes = dict(parse_setting(item) for item in args.overrides)
+    if args.method == "ours":
+        config = replace(config, renderer_overrides={**config.renderer_overrides, **changes})
+    else:
+        config = replace(config, baseline_overrides={**config.baseline_overrides, **changes})
+    data = GarmentDataset(project.root, source=config.renderer_source)
+    scored = {
+        src: GarmentDataset(project.root, source=src, split=validation.name) for src in SOURCES
+    }
+    runs = []
+    for seed in args.seeds if args.seeds is not None else [config.seed]:
+        seeded = replace(config, seed=seed)
+        with tempfile.TemporaryDirectory() as tmp:
+            start = time.perf_counter()
+            if args.method == "ours":
+                cfg = renderer_config(seeded)
+                result = train_renderer(data, tmp, cfg, progress=False)
+            else:
+                cfg = baseline_config(seeded, args.method)
+                result = train_baseline(args.method, data, tmp, cfg, progress=False)
+            train_s = time.perf_counter() - start
+            model = load_for_evaluation(result.model_path)
+        results, _ = evaluate_motion(
+            {src: (model, d) for src, d in scored.items()}, EvalConfig(sheet_samples=0)
+        )
+        figures = {
+            src: {m: r.metrics.summary()[m]["mean"] for m in METRICS} for src, r in results.items()
+        }
+        runs.append({"seed": seed, "train_s": train_s, "figures": figures})
+    mean = {
+        src: {m: float(np.mean([r["figures"][src][m] for r in runs])) for m in METRICS}
+        for src in SOURCES
+    }
+    out = {
+        "method": args.method, "changes": changes, "motion": validation.name,
+        "config": cfg.to_dict(), "runs": runs, "mean_over_seeds": mean,
+    }  # fmt: skip
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return
+    print(f"{args.method} on {validation.name} (validation), settings changed: {changes or 'none'}")
+    for run in runs + [{"seed": "all", "figures": mean}]:
+        for src, f in run["figures"].items():
+            trained = f", trained in {run['train_s']:.0f} s" if "train_s" in run else ""
+            print(
+                f"seed {run['seed']}  {SOURCES[src]:21s} MSE garment {f['mse_masked']:.4f}  "
+                f"SSIM garment {f['ssim_masked']:.4f}  MSE {f['mse']:.4f}  "
+                f"flicker {f['flicker']:.4f}{trained}"
+            )
+
+
+if __name__ == "__main__":
+    main()

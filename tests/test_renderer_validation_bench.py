@@ -1,0 +1,57 @@
+"""``benchmarks/renderer_validation.py``: a method retrained outside the project and scored on
+the renderers' validation motion (protocol V), the figures its settings are chosen on."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "renderer_validation.py"
+ROOT = BENCH.parents[1]
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(BENCH), *args], cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+
+
+def test_the_bench_reproduces_the_projects_validation_figures(smoke_project, tmp_path):
+    project = tmp_path / "project"
+    shutil.copytree(smoke_project, project, symlinks=True)
+    before = {p: p.stat().st_mtime_ns for p in (project / "baselines").rglob("*")}
+    run = _run(str(project), "--method", "dnr", "--json")
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["motion"] == "val-walk" and [r["seed"] for r in out["runs"]] == [0]
+    # Same settings, same seed: the project's own DNR scores the same on V (eval/report.json).
+    scored = json.loads((project / "eval" / "report.json").read_text())["validation"]["methods"]
+    for src, name in (("joint2coarse", "dnr"), ("sim", "dnr (simulated proxy)")):
+        for metric in ("mse_masked", "ssim_masked", "mse", "flicker"):
+            assert abs(out["runs"][0]["figures"][src][metric] - scored[name][metric]["mean"]) < 1e-6
+    # Nothing of the project was retrained or rewritten.
+    assert before == {p: p.stat().st_mtime_ns for p in (project / "baselines").rglob("*")}
+
+
+def test_a_changed_setting_trains_another_model_and_says_so(smoke_project, tmp_path):
+    project = tmp_path / "project"
+    shutil.copytree(smoke_project, project, symlinks=True)
+    run = _run(str(project), "--method", "ours", "--set", "lr_decay_from=1.0", "--seeds", "0", "1")
+    assert run.returncode == 0, run.stderr
+    assert "ours on val-walk (validation), settings changed: {'lr_decay_from': 1.0}" in run.stdout
+    assert run.stdout.count("seed 0 ") == 2 and run.stdout.count("seed all") == 2
+
+
+def test_a_project_without_a_validation_motion_is_told_what_to_give(smoke_project, tmp_path):
+    project = tmp_path / "project"
+    shutil.copytree(smoke_project, project, symlinks=True)
+    settings = json.loads((project / "project.json").read_text())
+    settings["pipeline"]["renderer_validation"] = None
+    (project / "project.json").write_text(json.dumps(settings))
+    run = _run(str(project), "--method", "dnr")
+    assert run.returncode == 2 and "give --motion NAME" in run.stderr
+    run = _run(str(project), "--method", "dnr", "--motion", "twirl")
+    assert run.returncode == 2 and "is not one of the validation motions" in run.stderr
