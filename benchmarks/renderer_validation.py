@@ -20,7 +20,9 @@ figures, then report the test split once with ``dng eval``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -85,7 +87,9 @@ def main() -> None:
     runs = []
     for seed in args.seeds if args.seeds is not None else [config.seed]:
         seeded = replace(config, seed=seed)
-        with tempfile.TemporaryDirectory() as tmp:
+        # the trainers say what they leave out on stdout: with --json it carries the JSON alone
+        quiet = contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext()
+        with tempfile.TemporaryDirectory() as tmp, quiet:
             start = time.perf_counter()
             if args.method == "ours":
                 cfg = renderer_config(seeded)

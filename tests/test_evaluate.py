@@ -137,15 +137,21 @@ def test_ablations_train_and_join_the_table(smoke_project, tmp_path):
     copy = _copy(smoke_project, tmp_path)
     dng = [sys.executable, "-m", "app.cli", "eval", str(copy)]
     r = subprocess.run(
-        dng + ["--ablations", "no-motion", "views-3"], capture_output=True, text=True
+        dng + ["--ablations", "no-motion", "no-temporal", "views-3"],
+        capture_output=True,
+        text=True,
     )
     assert r.returncode == 0, r.stderr
     config = project_config(Project(copy))
-    assert config.ablations == ("no-motion", "views-3")  # kept for the next dng eval
+    assert config.ablations == ("no-motion", "no-temporal", "views-3")  # kept for the next eval
     report = json.loads((copy / "eval" / "report.json").read_text())
     for name in config.ablations:
         m = report["methods"][ablation_label(name, config)]
         assert m["mse"]["n"] == report["methods"]["ours"]["mse"]["n"]
+    # scored on the validation motion too, where the choices are made
+    assert ablation_label("no-temporal", config) in report["validation"]["methods"]
+    trained = json.loads((copy / "ablations/no-temporal/report.json").read_text())
+    assert trained["config"]["use_temporal"] is False
     views = json.loads((copy / "ablations/views-3/dataset/samples.json").read_text())["samples"]
     assert {s["view"] for s in views} == {0, 1, 2}
     assert (copy / "ablations/views-3/proxy").is_symlink()  # shared, not copied

@@ -92,7 +92,10 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert stage["params"]["cameras"] == VALIDATION_CAMERAS  # a stream no test set uses
     assert "(protocol P, the paper's)" in md and "](eval/compare-dance.png)" in md
     assert "(discriminator), falling linearly to zero from step 15." in md  # of 30
-    assert "- baseline `dnr`: 30 steps" in md and "learning rates constant" in md
+    # the baselines train on our schedule
+    for kind in ("pix2pix", "dnr", "dnr-gan"):
+        assert f"- baseline `{kind}`: 30 steps" in md
+    assert md.count("learning rates falling linearly to zero from step 15") == 3
     for m in j2c["motions"].values():
         assert 0 < m["autoencoder_error_mm"]["mean_mm"] < m["autoencoder_error_mm"]["p95_mm"]
     # The time-left estimate has one expected cost per stage the demo ran, in its order.
@@ -327,11 +330,16 @@ def test_overrides_reach_their_network_and_dnr_with_our_loss():
 
     quick = preset("quick")
     ours = renderer_config(quick)
-    assert (ours.w_l1, ours.w_fm, ours.w_gan) == (10.0, 1.0, 0.1)
-    gan = baseline_config(quick, "dnr-gan")
+    assert (ours.w_l1, ours.w_fm, ours.w_gan) == (10.0, 0.0, 0.0)  # chosen on validation
+    assert quick.baselines == ("pix2pix", "dnr")  # DNR with our loss would be DNR itself
+    adversarial = replace(quick, renderer_overrides={"w_fm": 1.0, "w_gan": 0.1})
+    gan = baseline_config(adversarial, "dnr-gan")
     assert (gan.w_l1, gan.w_perceptual, gan.w_fm, gan.w_gan) == (10.0, 10.0, 1.0, 0.1)
     assert baseline_config(quick, "dnr").w_gan == 0.0  # L1 only, as the paper's DNR
     assert baseline_config(quick, "pix2pix").w_gan == 1.0  # its own loss
+    for kind in ("pix2pix", "dnr", "dnr-gan"):  # every baseline on our optimiser schedule
+        b = baseline_config(quick, kind)
+        assert (b.lr_g, b.lr_decay_from) == (ours.lr_g, ours.lr_decay_from)
     listed = replace(quick, renderer_overrides={"texture_sizes": [64, 32], "steps": 7})
     cfg = renderer_config(listed)
     assert cfg.texture_sizes == (64, 32) and cfg.steps == 7  # JSON lists become tuples

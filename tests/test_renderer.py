@@ -118,6 +118,21 @@ def test_paper_latent_and_ablation_without_motion():
     assert rgb.shape == (1, 3, 8, 8)
 
 
+def test_without_temporal_conditioning_frame_t_minus_1_changes_nothing():
+    torch.manual_seed(0)
+    cfg = PRESETS["tiny"]
+    uv, motion, mask = _inputs(cfg, 1, 8)
+    uv2, motion2, mask2 = _inputs(cfg, 1, 8, seed=1)
+    bg = torch.rand(1, 3, 8, 8)
+    for temporal in (True, False):
+        net = RenderNet(cfg.replace(use_temporal=temporal)).eval()
+        with torch.no_grad():
+            same, _ = net(uv, motion, mask, uv, motion, mask, bg)
+            other, _ = net(uv, motion, mask, uv2, motion2, mask2, bg)
+        # with it, the previous frame modulates the latent; without, it is never looked at
+        assert torch.equal(same, other) is (not temporal)
+
+
 def test_discriminator_is_a_70px_spectral_norm_patchgan():
     d = PatchDiscriminator(8)
     assert receptive_field([(4, 2), (4, 2), (4, 2), (4, 1), (4, 1)]) == 70

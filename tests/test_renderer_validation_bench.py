@@ -23,13 +23,13 @@ def test_the_bench_reproduces_the_projects_validation_figures(smoke_project, tmp
     project = tmp_path / "project"
     shutil.copytree(smoke_project, project, symlinks=True)
     before = {p: p.stat().st_mtime_ns for p in (project / "baselines").rglob("*")}
-    run = _run(str(project), "--method", "dnr", "--json")
+    run = _run(str(project), "--method", "dnr-gan", "--json")  # its trainer prints a line too
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout)
     assert out["motion"] == "val-walk" and [r["seed"] for r in out["runs"]] == [0]
-    # Same settings, same seed: the project's own DNR scores the same on V (eval/report.json).
+    # Same settings, same seed: the project's own model scores the same on V (eval/report.json).
     scored = json.loads((project / "eval" / "report.json").read_text())["validation"]["methods"]
-    for src, name in (("joint2coarse", "dnr"), ("sim", "dnr (simulated proxy)")):
+    for src, name in (("joint2coarse", "dnr-gan"), ("sim", "dnr-gan (simulated proxy)")):
         for metric in ("mse_masked", "ssim_masked", "mse", "flicker"):
             assert abs(out["runs"][0]["figures"][src][metric] - scored[name][metric]["mean"]) < 1e-6
     # Nothing of the project was retrained or rewritten.

@@ -28,12 +28,14 @@ def project_test_sets(root, config) -> list[str]:
     """The project's test motions that have a test set (``testset/NAME/samples.json``): those of
     ``config.test_motions`` first, in its order, then any others by name; never the training
     motion (its test set, from unseen cameras, is the evaluation's protocol P, not an unseen
-    motion). InputError when there is none."""
+    motion) nor the renderers' validation motion (protocol V: where settings are chosen, not
+    a test). InputError when there is none."""
     root = Path(root)
+    not_tests = {config.train_motion.name, config.renderer_validation}
     have = sorted(
         p.parent.name
         for p in (root / "testset").glob("*/samples.json")
-        if p.parent.name != config.train_motion.name
+        if p.parent.name not in not_tests
     )
     if not have:
         raise InputError("no test set: run dng demo (the testset stage) first", root / "testset")

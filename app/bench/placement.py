@@ -5,10 +5,10 @@ towards Joint2Coarse's prediction, vertex by vertex: ``sim + s * (pred - sim)`` 
 s in ``--scales`` (0: the simulated proxy, the renderers alone; 1: Joint2Coarse's, what
 ``dng eval`` scores as ``ours``). The proxy's mean vertex error is s times Joint2Coarse's. Every
 method that ``dng eval`` renders on Joint2Coarse's proxy from the project's own data (ours, the
-baselines, the ``no-motion`` and ``views-N`` ablations) renders each of these proxies from the
-test motions' unseen cameras, scored as ``dng eval`` scores (the test motions pooled). One more
-row, ``autoencoder`` (``--no-autoencoder`` skips it): the proxy Joint2Coarse's decoder gives
-for the simulated shapes themselves (its shape autoencoder,
+baselines, the ``no-motion``, ``no-temporal`` and ``views-N`` ablations) renders each of these
+proxies from the test motions' unseen cameras, scored as ``dng eval`` scores (the test motions
+pooled). One more row, ``autoencoder`` (``--no-autoencoder`` skips it): the proxy
+Joint2Coarse's decoder gives for the simulated shapes themselves (its shape autoencoder,
 :func:`training.joint2coarse.reconstruct_proxy`), close to what a perfect motion encoder
 would reach with the shapes the network learnt.
 
@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--methods", nargs="+", default=None, metavar="NAME",
         help="methods to render, as dng eval names them (default: ours, the baselines and the "
-        "project's no-motion and views-N ablations)",
+        "project's no-motion, no-temporal and views-N ablations)",
     )  # fmt: skip
     parser.add_argument(
         "--no-autoencoder", action="store_true",

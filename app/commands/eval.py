@@ -62,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--ablations",
         nargs="+",
         metavar="NAME",
-        help="train and score ablations too: no-motion, views-N (N cameras per frame), "
+        help="train and score ablations too: no-motion, no-temporal (no SPADE conditioning on "
+        "frame t-1, a single-frame discriminator), views-N (N cameras per frame), "
         "template-NAME (a coarse template as proxy, e.g. template-long-skirt); each costs about "
         "one renderer training",
     )

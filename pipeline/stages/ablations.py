@@ -23,20 +23,26 @@ from pipeline.stages.renderer import stage_renderer
 from pipeline.stages.simulate import stage_simulate
 
 #: Ablations (``PipelineConfig.ablations``): ``no-motion`` (the renderer without motion
-#: features), ``views-N`` (a training set with N cameras per frame instead of
+#: features), ``no-temporal`` (SPADE conditioned on zeros instead of frame t-1's latent, a
+#: discriminator that sees single frames), ``views-N`` (a training set with N cameras per frame instead of
 #: ``views_per_frame``), ``template-NAME`` (a coarse template fitted to the target instead of the
 #: derived proxy; NAME from ``dng garment list``).
-ABLATION_KINDS = ("no-motion", "views-", "template-")
+ABLATION_KINDS = ("no-motion", "no-temporal", "views-", "template-")
+
+#: The ablations that retrain only the renderer, on the project's data set, with these changes.
+RENDERER_ABLATIONS = {"no-motion": {"use_motion": False}, "no-temporal": {"use_temporal": False}}
 
 
 def check_ablation(name: str) -> None:
-    ok = name == "no-motion"
+    ok = name in RENDERER_ABLATIONS
     if name.startswith("views-"):
         ok = name[6:].isdigit() and int(name[6:]) > 0
     if name.startswith("template-"):
         ok = len(name) > 9
     if not ok:
-        raise InputError(f"unknown ablation {name!r}: use no-motion, views-N or template-NAME")
+        raise InputError(
+            f"unknown ablation {name!r}: use no-motion, no-temporal, views-N or template-NAME"
+        )
 
 
 def ablation_project(project: Project, name: str) -> Project:
@@ -59,7 +65,8 @@ def stage_ablation(
 ) -> dict:
     """Train one ablation of the renderer (see :data:`ABLATION_KINDS`); returns its report.
 
-    ``no-motion`` trains into ``ablations/no-motion/`` from the project's data set. The others
+    ``no-motion`` and ``no-temporal`` (:data:`RENDERER_ABLATIONS`) train into
+    ``ablations/NAME/`` from the project's data set. The others
     are sub-projects under ``ablations/NAME/`` that share the parent's finished folders by
     symbolic links and run only the stages that differ: ``views-N`` its own training set and
     renderer; ``template-NAME`` its own proxy (the template fitted to the target), proxy
@@ -67,10 +74,10 @@ def stage_ablation(
     target motion, so the scores compare).
     """
     check_ablation(name)
-    if name == "no-motion":
+    if name in RENDERER_ABLATIONS:
         return stage_renderer(
-            project, config, log, progress, stage="ablations/no-motion",
-            overrides={"use_motion": False},
+            project, config, log, progress, stage=f"ablations/{name}",
+            overrides=RENDERER_ABLATIONS[name],
         )  # fmt: skip
     sub = ablation_project(project, name)
     if name.startswith("views-"):
@@ -96,6 +103,8 @@ def ablation_label(name: str, config: PipelineConfig) -> str:
     """The ablation's row name in the comparison table."""
     if name == "no-motion":
         return "ours, no motion features"
+    if name == "no-temporal":
+        return "ours, no temporal conditioning"
     if name.startswith("views-"):
         return f"ours, {name[6:]} views per frame (not {config.views_per_frame})"
     return f"ours, {name[len('template-') :]} template as proxy"

@@ -19,7 +19,12 @@ from pipeline.config import (
     quiet,
     renderer_validation_motion,
 )
-from pipeline.stages.ablations import ablation_label, ablation_project, check_ablation
+from pipeline.stages.ablations import (
+    RENDERER_ABLATIONS,
+    ablation_label,
+    ablation_project,
+    check_ablation,
+)
 from training.dataset import GarmentDataset
 
 
@@ -44,8 +49,8 @@ def eval_methods(project: Project, config: PipelineConfig) -> dict[str, tuple[Pa
         methods[f"{kind} (simulated proxy)"] = (model, "sim", root)
     for name in config.ablations:
         check_ablation(name)
-        if name == "no-motion":
-            model, data = project.path("ablations/no-motion", "renderer.pt"), root
+        if name in RENDERER_ABLATIONS:
+            model, data = project.path(f"ablations/{name}", "renderer.pt"), root
         elif name.startswith("views-"):
             model, data = ablation_project(project, name).path("renderer", "renderer.pt"), root
         else:

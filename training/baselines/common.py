@@ -120,10 +120,9 @@ class BaselineConfig(PlainConfig):
     """Adam learning rate of the discriminator."""
     lr_decay_from: float = 1.0
     """Fraction of the steps after which both learning rates fall linearly to zero (as the
-    renderer's ``lr_decay_from``); 1.0 keeps them constant. The baselines keep 1.0: decaying
-    over the second half made them worse on the quick demo's data set, simulated proxy (MSE
-    DNR 0.0034 -> 0.0039, Pix2Pix 0.0027 -> 0.0029; ``dng train baselines PROJECT --set
-    lr_decay_from=0.5``, then ``dng eval``)."""
+    renderer's ``lr_decay_from``); 1.0 keeps them constant. A project's baselines train on our
+    renderer's schedule, its ``lr_g`` and this (``pipeline.config.baseline_config``, where the
+    validation figures that chose it are)."""
     betas: tuple[float, float] = (0.5, 0.999)
     """Adam betas."""
     batch_size: int = 2

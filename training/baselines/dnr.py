@@ -60,9 +60,9 @@ class DNRConfig(BaselineConfig):
     gan: bool = False
     """Train with our loss and the temporal PatchGAN (the ``dnr-gan`` variant)."""
     lr_g: float = 1e-4
-    """Adam learning rate of the U-Net and the texture: the paper's rate for its renderer; our
-    renderer's ``cpu`` preset trains at 2e-4, falling over the second half (the report's "What
-    each method got" lists both)."""
+    """Adam learning rate of the U-Net and the texture: the paper's rate for its renderer. A
+    project's baselines train at our renderer's rate and schedule instead
+    (``pipeline.config.baseline_config``; the report's "What each method got" lists them)."""
     lr_d: float = 3e-4
     """Adam learning rate of the discriminator (the paper's, as our renderer's)."""
 

@@ -39,6 +39,10 @@ class RendererConfig(PlainConfig):
     """Channels of the motion-feature map (19 joints x 5 frames)."""
     use_motion: bool = True
     """Feed the motion features to the network (False: the "without motion features" ablation)."""
+    use_temporal: bool = True
+    """Condition the SPADE block on frame t-1's latent and show the discriminator pairs of
+    consecutive frames (False: the "no temporal conditioning" ablation: SPADE conditioned on
+    zeros for t-1, a discriminator that sees single frames)."""
     base_width: int = 16
     """Channels of the encoder's first layer; each downsampling doubles it up to ``max_width``.
     The speed knob."""

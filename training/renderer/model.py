@@ -304,6 +304,8 @@ class RenderNet(nn.Module):
         (frame t's, from :meth:`encode_with_skips`) are needed when the config has
         ``skip_connections``.
         """
+        if not self.config.use_temporal:  # the ablation: nothing of frame t-1 reaches SPADE
+            z_prev = torch.zeros_like(z)
         u, a = self.decoder(self.spade(z, z_prev), skips)
         bg = self.background_net(background * 2 - 1)
         return self.refiner((1 - a) * bg + a * u, background), a

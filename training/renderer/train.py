@@ -119,7 +119,7 @@ def load_model(
         net.load_state_dict(payload["generator"])
         disc = None
         if payload.get("discriminator") is not None:
-            disc = PatchDiscriminator(config.disc_width)
+            disc = PatchDiscriminator(config.disc_width, disc_channels(config))
             disc.load_state_dict(payload["discriminator"])
     except RuntimeError as exc:
         raise InputError(f"weights do not match the stored config: {exc}", path) from None
@@ -130,7 +130,7 @@ def _architecture(config: RendererConfig) -> dict:
     keep = (
         "texture_sizes", "texture_channels", "motion_channels", "use_motion", "base_width",
         "max_width", "n_down", "decoder_features", "background_width", "disc_width",
-        "skip_connections", "blend_output",
+        "skip_connections", "blend_output", "use_temporal",
     )  # fmt: skip
     d = config.to_dict()
     return {k: d[k] for k in keep}
@@ -154,16 +154,24 @@ def _image(t: torch.Tensor) -> np.ndarray:
     return (a * 255 + 0.5).astype(np.uint8)
 
 
+def disc_channels(config: RendererConfig) -> int:
+    """Input channels of the discriminator: a pair of consecutive RGB frames, or one frame
+    without temporal conditioning (``use_temporal``)."""
+    return 6 if config.use_temporal else 3
+
+
 class RendererMethod:
     """Our renderer as a :class:`training.adversarial.Method`: the generator renders R_t from
     frames t and t-1 (:meth:`RenderBatch.generator_inputs`); the discriminator sees
     consecutive-frame pairs, ``[R_t, I_{t-1}]`` and ``[I_{t+1}, R_t]`` (fake), ``[I_t, I_{t-1}]``
-    and ``[I_{t+1}, I_t]`` (real); no regulariser of its own."""
+    and ``[I_{t+1}, I_t]`` (real), or without ``temporal`` single frames, R_t against I_t; no
+    regulariser of its own."""
 
     extra_weight = 0.0
 
-    def __init__(self, use_motion: bool):
+    def __init__(self, use_motion: bool, temporal: bool = True):
         self.use_motion = use_motion
+        self.temporal = temporal
 
     def generate(self, net, batch: RenderBatch) -> tuple[torch.Tensor, torch.Tensor]:
         return net(**batch.generator_inputs(self.use_motion))
@@ -174,8 +182,11 @@ class RendererMethod:
     def disc_inputs(
         self, batch: RenderBatch, fake: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(real, fake) pairs, each (2B, 6, H, W)."""
+        """(real, fake) pairs, each (2B, 6, H, W); single frames (B, 3, H, W) without
+        ``temporal``."""
         real_t, prev, nxt = batch.target[:, CUR], batch.target[:, PREV], batch.target[:, NEXT]
+        if not self.temporal:
+            return real_t, fake
         real = torch.cat([torch.cat([real_t, prev], 1), torch.cat([nxt, real_t], 1)])
         return real, torch.cat([torch.cat([fake, prev], 1), torch.cat([nxt, fake], 1)])
 
@@ -199,7 +210,7 @@ def renderer_trainer(
     ``out_dir``."""
     torch.manual_seed(config.seed)
     net = RenderNet(config)
-    disc = PatchDiscriminator(config.disc_width)
+    disc = PatchDiscriminator(config.disc_width, disc_channels(config))
     if init_from is not None:
         cfg0, net0, disc0 = load_model(init_from)
         if _architecture(cfg0) != _architecture(config):
@@ -227,7 +238,7 @@ def renderer_trainer(
         extra={"init_from": "" if init_from is None else str(init_from)},
     )
     return AdversarialTrainer(
-        net, disc, RendererMethod(config.use_motion), config, files,
+        net, disc, RendererMethod(config.use_motion, config.use_temporal), config, files,
         n_samples=len(dataset), batch_size=config.batch_size, steps=steps, device=device,
         precision=config.resolved_precision(device.type),
     )  # fmt: skip
