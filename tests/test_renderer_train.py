@@ -247,3 +247,19 @@ def test_learning_rates_follow_the_schedule(data, tmp_path, monkeypatch):
     for bad in (-0.1, 1.5, float("nan"), True, "half"):
         with pytest.raises(InputError, match="lr_decay_from"):
             TINY.replace(lr_decay_from=bad)
+
+
+def test_l1_alone_trains_no_discriminator_and_the_same_generator(data, tmp_path, monkeypatch):
+    """With no GAN or feature-matching term the discriminator changes no generator weight: the
+    run builds none (faster) and ends with the generator a discriminator run would give."""
+    import training.renderer.train as train_module
+
+    cfg = TINY.replace(steps=6, log_every=2, w_fm=0.0, w_gan=0.0, w_perceptual=0.0)
+    plain = train_renderer(data, tmp_path / "plain", cfg, progress=False)
+    assert plain.discriminator is None and load_model(plain.model_path)[2] is None
+    # the same run, but with the discriminator built and updated every step as before
+    monkeypatch.setattr(train_module, "_needs_discriminator", lambda config: True)
+    with_d = train_renderer(data, tmp_path / "with-d", cfg, progress=False)
+    assert with_d.discriminator is not None
+    for k, v in plain.net.state_dict().items():
+        assert torch.equal(v, with_d.net.state_dict()[k]), k

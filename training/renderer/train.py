@@ -154,6 +154,12 @@ def _image(t: torch.Tensor) -> np.ndarray:
     return (a * 255 + 0.5).astype(np.uint8)
 
 
+def _needs_discriminator(config: RendererConfig) -> bool:
+    """Whether a loss term looks at the discriminator: on L1 alone (the quick preset) its
+    passes and updates would change no weight of the generator, so none is built."""
+    return config.w_gan > 0 or config.w_fm > 0
+
+
 def disc_channels(config: RendererConfig) -> int:
     """Input channels of the discriminator: a pair of consecutive RGB frames, or one frame
     without temporal conditioning (``use_temporal``)."""
@@ -210,13 +216,17 @@ def renderer_trainer(
     ``out_dir``."""
     torch.manual_seed(config.seed)
     net = RenderNet(config)
-    disc = PatchDiscriminator(config.disc_width, disc_channels(config))
+    disc = (
+        PatchDiscriminator(config.disc_width, disc_channels(config))
+        if _needs_discriminator(config)
+        else None
+    )
     if init_from is not None:
         cfg0, net0, disc0 = load_model(init_from)
         if _architecture(cfg0) != _architecture(config):
             raise InputError("model to fine-tune has a different architecture", init_from)
         net.load_state_dict(net0.state_dict())
-        if disc0 is not None:
+        if disc0 is not None and disc is not None:
             disc.load_state_dict(disc0.state_dict())
     if trainable == "background":
         names = set(background_finetune_parameters(net))
