@@ -39,7 +39,8 @@ from pipeline.stages.videos import stage_videos
 
 #: Seconds per unit of work of each stage on the 2-core development machine, from the quick
 #: preset's run (``dng demo --out /tmp/q18``: its stage table divided by the units below; its
-#: Joint2Coarse stage from a rerun with today's settings, /tmp/q19). Only their ratios matter
+#: Joint2Coarse stage from a rerun with today's settings, /tmp/q19; the target's embedding and
+#: the renderer from ``dng demo --out /tmp/q27``, 25.1 minutes from an empty folder). Only their ratios matter
 #: once a stage has run: the time left is the remaining work at the rate measured so far.
 _SECONDS_PER = {
     "motion": 0.26,  # the motions stage, per motion (7.2 s for 28)
@@ -49,13 +50,15 @@ _SECONDS_PER = {
     "sim_clip": 4.0,
     "sim_frame": 0.10,
     # the detailed target embedded in the proxy's simulation and kept out of the body, per frame
-    # (164 s for the quick preset's 600 frames)
-    "embed_frame": 0.27,
+    # (151 s for the quick preset's 700 frames, /tmp/q27)
+    "embed_frame": 0.22,
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
     "gt_sample": 0.14,  # ground-truth renders per training sample (3 frames) at 128 px
     "j2c_step": 0.0223,  # Joint2Coarse, per step of the paper's model (ours trains beside it)
     "test_sample": 0.22,  # test-set ground truth per sample at 128 px
-    "render_step": 0.79,  # renderer step at 128 px, the baselines training beside it
+    # renderer step at 128 px, the baselines training beside it (quick, L1 alone: 316 s for 600
+    # steps in /tmp/q27, a quick run from an empty folder)
+    "render_step": 0.53,
     "eval_sample": 0.09,  # evaluation per test sample and method (each proxy counts)
     "video_frame": 0.19,  # videos, per frame of a test motion
 }
