@@ -48,7 +48,11 @@ class RendererConfig(PlainConfig):
     SSIM / flicker on Joint2Coarse's proxy): with FM 1 and GAN 0.1, seed 0, 0.0269 / 0.616 /
     0.0103 without against 0.0257 / 0.662 / 0.0099 with; on L1 alone (the quick preset) the
     same to 0.0001 at seeds 0 and 1 (0.0253 / 0.681 / 0.0098 without, 0.0253 / 0.680 / 0.0098
-    with, at seed 0): without a discriminator, the network makes no use of frame t-1 here."""
+    with, at seed 0): without a discriminator, the network makes no use of frame t-1 here.
+    Nor could it gain much: an embedded target (quick's ground truth) is a function of the
+    proxy's current frame alone, so frame t-1 tells the network nothing about frame t's image
+    that frame t's inputs do not; a simulated target (the paper preset) has dynamics of its
+    own for it to carry."""
     base_width: int = 16
     """Channels of the encoder's first layer; each downsampling doubles it up to ``max_width``.
     The speed knob."""
