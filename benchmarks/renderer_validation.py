@@ -1,4 +1,4 @@
-"""A renderer or a baseline on a project's validation motion: the figures its settings are chosen on.
+"""A renderer or a baseline on a project's validation motion: what its settings are chosen on.
 
 Usage: ``python benchmarks/renderer_validation.py PROJECT --method ours|pix2pix|dnr|dnr-gan
 [--set KEY=VALUE ...] [--seeds 0 1] [--json]``

@@ -40,8 +40,9 @@ from pipeline.stages.videos import stage_videos
 #: Seconds per unit of work of each stage on the 2-core development machine, from the quick
 #: preset's run (``dng demo --out /tmp/q18``: its stage table divided by the units below; its
 #: Joint2Coarse stage from a rerun with today's settings, /tmp/q19; the target's embedding and
-#: the renderer from ``dng demo --out /tmp/q27``, 25.1 minutes from an empty folder). Only their ratios matter
-#: once a stage has run: the time left is the remaining work at the rate measured so far.
+#: the renderer from ``dng demo --out /tmp/q27``, 25.1 minutes from an empty folder). Only their
+#: ratios matter once a stage has run: the time left is the remaining work at the rate measured
+#: so far.
 _SECONDS_PER = {
     "motion": 0.26,  # the motions stage, per motion (7.2 s for 28)
     "setup": 2.5,  # garment, proxy: per stage

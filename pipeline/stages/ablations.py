@@ -24,9 +24,9 @@ from pipeline.stages.simulate import stage_simulate
 
 #: Ablations (``PipelineConfig.ablations``): ``no-motion`` (the renderer without motion
 #: features), ``no-temporal`` (SPADE conditioned on zeros instead of frame t-1's latent, a
-#: discriminator that sees single frames), ``views-N`` (a training set with N cameras per frame instead of
-#: ``views_per_frame``), ``template-NAME`` (a coarse template fitted to the target instead of the
-#: derived proxy; NAME from ``dng garment list``).
+#: discriminator that sees single frames), ``views-N`` (a training set with N cameras per frame
+#: instead of ``views_per_frame``), ``template-NAME`` (a coarse template fitted to the target
+#: instead of the derived proxy; NAME from ``dng garment list``).
 ABLATION_KINDS = ("no-motion", "no-temporal", "views-", "template-")
 
 #: The ablations that retrain only the renderer, on the project's data set, with these changes.
