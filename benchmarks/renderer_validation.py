@@ -62,10 +62,10 @@ def main() -> None:
 
     torch.set_num_threads(1)
     project = Project(args.project)
-    config = project_config(project)
-    if args.motion:
-        config = replace(config, renderer_validation=args.motion)
     try:
+        config = project_config(project)
+        if args.motion:
+            config = replace(config, renderer_validation=args.motion)
         validation = renderer_validation_motion(config)
     except InputError as exc:
         ap.error(str(exc))

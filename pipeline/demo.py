@@ -230,6 +230,11 @@ def run_demo(
     log = progress.log
     if len(tests) < len(config.test_motions):
         log("note: real motion capture not found (install assimp-testmodels); skipping it")
+    if config.simulate_target and config.renderer_validation and not checked:
+        log(
+            f"note: the validation motion {config.renderer_validation} is not on this machine "
+            "(install assimp-testmodels): no protocol V, so no setting can be chosen here"
+        )
 
     progress.stage("motions", lambda: stage_motions(project, config, log))
     progress.stage("garment", lambda: stage_garment(project, config, log))

@@ -55,3 +55,5 @@ def test_a_project_without_a_validation_motion_is_told_what_to_give(smoke_projec
     assert run.returncode == 2 and "give --motion NAME" in run.stderr
     run = _run(str(project), "--method", "dnr", "--motion", "twirl")
     assert run.returncode == 2 and "is not one of the validation motions" in run.stderr
+    run = _run(str(tmp_path / "nowhere"), "--method", "dnr")
+    assert run.returncode == 2 and "not a garment project" in run.stderr

@@ -321,6 +321,9 @@ class RenderNet(nn.Module):
         background: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Render frame t from its inputs and frame t-1's: (rgb (B, 3, H, W), A (B, 1, H, W))."""
+        if not self.config.use_temporal:  # frame t-1 is never looked at: not encoded either
+            z, skips = self.encode_with_skips(self.input_features(uv, motion, mask))
+            return self.decode(z, z, background, skips)
         b = uv.shape[0]
         x = self.input_features(
             torch.cat([uv, uv_prev]),
