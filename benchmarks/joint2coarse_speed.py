@@ -1,12 +1,14 @@
 """Joint2Coarse inference speed on CPU: streaming latency per frame and batched throughput.
 
 Usage: ``python benchmarks/joint2coarse_speed.py [--vertices 2000] [--frames 600]
-[--threads 1 2] [--output-basis 256 0] [--model paper ours] [--mirror]``
+[--threads 1 2] [--output-basis 256 0] [--model paper ours] [--mirror] [--members N]``
 
 Our model (``model=ours``: the proxy skinned to the body plus a residual network) is timed
 first, streaming and batched, on a synthetic skirt of ``--vertices`` with a random residual of
-the config's ``residual_widths`` (``--residual-widths``; none: the linear residual); with
-``--mirror``, as trained with mirrored clips: it predicts symmetrically (two passes a frame).
+the config's ``residual_widths`` (``--residual-widths``; none: the linear residual) onto
+``residual_basis`` principal components, ``--members`` networks side by side
+(``residual_members``); with ``--mirror``, as trained with mirrored clips: it predicts
+symmetrically (two passes a frame).
 
 Times the paper-sized network (widths at full size for 2048+ vertices) with random weights
 (speed does not depend on what the weights are) and output frames that follow the hips' tilt
@@ -114,6 +116,10 @@ def main() -> None:
         "the motion and its mirror each frame",
     )  # fmt: skip
     parser.add_argument(
+        "--members", type=int, default=1,
+        help="ours: residual networks folded into one (residual_members)",
+    )  # fmt: skip
+    parser.add_argument(
         "--train-steps", type=int, default=20,
         help="also time this many training steps per stage (0: skip)",
     )  # fmt: skip
@@ -124,6 +130,7 @@ def main() -> None:
         base = replace(base, encoder_widths=tuple(args.encoder_widths))
     if args.residual_widths is not None:
         base = replace(base, residual_widths=tuple(args.residual_widths))
+    base = replace(base, residual_members=args.members)
     joints, root_rot = joint2coarse_inputs(synthetic_walk(args.frames, seed=0))
     print(f"{_load()} before; torch {torch.__version__}, {args.frames} frames per measurement")
     verdict = None
@@ -133,6 +140,7 @@ def main() -> None:
             f"== model=ours: Vc={net.n_vertices}, descriptor {net.descriptor_dim}, "
             f"{len(net.arrays['feat_mean'])} residual features, hidden widths "
             f"{base.residual_widths or 'none (linear)'}"
+            + (f" x {base.residual_members} members" if base.residual_widths else "")
             + (", symmetric (mirror=true)" if args.mirror else "")
         )
         for threads in args.threads:
@@ -194,7 +202,8 @@ def main() -> None:
 
 def _ours(base: Joint2CoarseConfig, n_vertices: int, mirror: bool) -> BodyResidualModel:
     """Our model for a synthetic skirt of about ``n_vertices`` vertices, with a random residual
-    of the config's ``residual_widths`` (speed does not depend on its values); with ``mirror``,
+    of the config's ``residual_widths``, ``residual_members`` and ``residual_basis`` (speed does
+    not depend on its values); with ``mirror``,
     the skirt's mirror map (the symmetric prediction)."""
     around = 100
     rings = max(2, round(n_vertices / around))
@@ -208,11 +217,15 @@ def _ours(base: Joint2CoarseConfig, n_vertices: int, mirror: bool) -> BodyResidu
         "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,
         "feat_mean": np.zeros(k), "feat_std": np.ones(k),
     }  # fmt: skip
-    width = k + 1
-    for i, w in enumerate(config.residual_widths):
-        arrays[f"hidden{i}"] = rng.normal(0.0, width**-0.5, (width, w)).astype(np.float32)
-        width = w + 1
-    arrays["coef"] = rng.normal(0.0, 1e-3, (width, 3 * len(skirt))).astype(np.float32)
+    width, n = k + 1, config.residual_members
+    for i, w in enumerate(config.residual_widths):  # members side by side (dense: as fast)
+        arrays[f"hidden{i}"] = rng.normal(0.0, width**-0.5, (width, n * w)).astype(np.float32)
+        width = n * w + 1
+    out = 3 * len(skirt)
+    if config.residual_widths:  # onto the principal components and the mean residual
+        arrays["basis"] = rng.normal(0.0, 0.1, (config.residual_basis + 1, out)).astype(np.float32)
+        out = config.residual_basis + 1
+    arrays["coef"] = rng.normal(0.0, 1e-3, (width, out)).astype(np.float32)
     if mirror:
         m = mirror_map(skirt, skirt_faces(rings, around))
         arrays["mirror_corners"], arrays["mirror_barycentric"] = m.corners, m.barycentric

@@ -329,10 +329,13 @@ PRESETS: dict[str, PipelineConfig] = {
         # Not taken either, with these settings (seeds 0 to 2: 27.9 / 62): learning_rate 5e-4
         # and 2e-3 28.3 / 63 and 28.3 / 62; residual_widths [128, 128, 128] 27.9 / 62, [64, 64]
         # 28.2 / 63; residual_weight_decay and residual_input_noise (their docstrings).
+        # With the spine's and legs' motion alone (body_model.DYNAMIC_JOINTS: 27.3 / 60 at
+        # seeds 0 to 2), three members (residual_members) 26.7 / 58, better at each seed.
         joint2coarse_overrides={
             "model": "ours",
             "residual_widths": [128, 128],
             "residual_steps": 6000,
+            "residual_members": 3,
             "mirror": True,
             "skin_fade": 0.5,
         },

@@ -28,6 +28,7 @@ from training.joint2coarse.body_model import (
     bone_transforms,
     hidden_names,
     motion_features,
+    residual_hidden,
 )
 from training.joint2coarse.descriptor import canonical_joint_order
 from training.joint2coarse.synthetic import rest_skirt, synthetic_clip
@@ -121,7 +122,8 @@ def test_the_network_is_plain_matrices_and_runs_in_torch_as_in_numpy(trained, cl
     n_features = len(arrays["feat_mean"])
     assert arrays["hidden0"].shape == (n_features + 1, 256)
     assert arrays["hidden1"].shape == (257, 256)
-    assert arrays["coef"].shape == (257, net.n_vertices * 3)
+    k = arrays["basis"].shape[0]  # the principal components and the mean residual
+    assert arrays["coef"].shape == (257, k) and arrays["basis"].shape == (k, net.n_vertices * 3)
     desc = motion_descriptors(clips[1].joints, clips[1].root_rotations, OURS.window, OURS.stride)
     desc = desc[0][:50]
     with torch.no_grad():
@@ -134,6 +136,34 @@ def test_the_network_is_plain_matrices_and_runs_in_torch_as_in_numpy(trained, cl
     with pytest.raises(InputError, match="hidden1") as err:
         load_model(bad)
     assert str(bad) in str(err.value)
+    payload = torch.load(trained.model_path, weights_only=False)
+    payload["state_dict"]["basis"] = payload["state_dict"]["basis"][:, :-3]
+    torch.save(payload, bad)
+    with pytest.raises(InputError, match="vertices need") as err:
+        load_model(bad)
+    assert str(bad) in str(err.value)
+
+
+def test_members_fold_into_one_network_that_predicts_their_mean():
+    """``residual_members``: networks trained from successive seeds, stacked (first layers side
+    by side, later ones block diagonal, last layers averaged) give the mean of their outputs."""
+    from training.joint2coarse.body_model import fit_residual_network, stack_members
+
+    rng = np.random.default_rng(1)
+    x = np.concatenate([rng.standard_normal((80, 5)), np.ones((80, 1))], 1)
+    y = np.tanh(x[:, :2]) @ rng.standard_normal((2, 9)) * 0.01
+    cfg = replace(OURS, residual_widths=(6, 4), residual_steps=20, residual_basis=3)
+    members = [fit_residual_network(replace(cfg, seed=s), x, y) for s in (0, 1, 2)]
+    assert all(np.array_equal(m[2], members[0][2]) for m in members)  # one shared basis
+    outputs = [residual_hidden(x, h) @ c @ b for h, c, b in members]
+    hidden, coef = stack_members([(h, c) for h, c, _ in members])
+    assert [w.shape for w in hidden] == [(6, 18), (19, 12)] and coef.shape == (13, 4)
+    stacked = residual_hidden(x, hidden) @ coef @ members[0][2]
+    assert_close(stacked, np.mean(outputs, 0), atol=1e-9, what="stacked vs mean of members")
+    one = [members[0][:2]]
+    assert stack_members(one) is one[0]  # a single member as it is
+    with pytest.raises(InputError, match="residual_members"):
+        replace(cfg, residual_members=0)
 
 
 def test_ours_saves_loads_and_streams_like_the_batch(trained, clips, tmp_path):
@@ -171,7 +201,7 @@ def test_residual_input_noise_and_weight_decay_change_only_what_they_say():
     cfg = replace(OURS, residual_widths=(8,), residual_steps=30, residual_basis=4)
 
     def fit(**changes):
-        hidden, coef = fit_residual_network(replace(cfg, **changes), x, y)
+        hidden, coef, _ = fit_residual_network(replace(cfg, **changes), x, y)
         return np.concatenate([hidden[0].ravel(), coef.ravel()])
 
     plain = fit()

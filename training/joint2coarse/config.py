@@ -67,6 +67,13 @@ class Joint2CoarseConfig(PlainConfig):
     inputs in training (in units of each feature's spread; 0: none), a regulariser for motions
     whose features lie off the training set's. Measured as ``residual_weight_decay``: 0.1 29.4 /
     64, 0.3 32.9 / 72, against 27.9 / 62 without: it hurts."""
+    residual_members: int = 1
+    """``ours``: residual networks trained from seeds ``seed``, ``seed + 1``, ...; the residual
+    is their mean (folded into one wider network: the hidden layers side by side, block
+    diagonal after the first, each member's last layer onto the shared principal components, so
+    a frame costs little more than one member's). Chosen on the quick preset's validation
+    motions (its model, seeds 0 to 2; ``python benchmarks/joint2coarse_validation.py P --seeds
+    0 1 2 --set residual_members=N``): the quick preset's comment in ``pipeline/config.py``."""
     mirror: bool = False
     """Train on each training clip's left-right mirror too (:mod:`training.joint2coarse.augment`:
     the simulation of the mirrored motion, for no simulation; a project's garment that is not
@@ -178,11 +185,10 @@ class Joint2CoarseConfig(PlainConfig):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 0):
                 raise InputError(f"joint2coarse config {name}={v!r} must be an integer >= 0")
-        if not (isinstance(self.residual_basis, int) and self.residual_basis > 0):
-            raise InputError(
-                f"joint2coarse config residual_basis={self.residual_basis!r} must be a positive "
-                "integer"
-            )
+        for name in ("residual_basis", "residual_members"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v > 0):
+                raise InputError(f"joint2coarse config {name}={v!r} must be a positive integer")
         for name in ("encoder_widths", "motion_widths", "residual_widths"):
             v = getattr(self, name)
             if not (isinstance(v, tuple) and all(isinstance(w, int) and w > 0 for w in v)):
