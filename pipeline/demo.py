@@ -55,7 +55,9 @@ _SECONDS_PER = {
     "embed_frame": 0.22,
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
     "gt_sample": 0.14,  # ground-truth renders per training sample (3 frames) at 128 px
-    "j2c_step": 0.0223,  # Joint2Coarse, per step of the paper's model (ours trains beside it)
+    # Joint2Coarse, per step of the paper's model (ours trains first: 201 s for the quick
+    # preset's 7000 steps in /tmp/q30, with ours' three networks and tests beside part of it)
+    "j2c_step": 0.029,
     "test_sample": 0.22,  # test-set ground truth per sample at 128 px
     # renderer step at 128 px, the baselines training beside it (quick, L1 alone: 316 s for 600
     # steps in /tmp/q27, a quick run from an empty folder)
