@@ -13,8 +13,7 @@ the heading frame, as the sum of
    front of the skirt with the legs, whatever the training clips were;
 2. a **residual** from features of the joints' history: the current pose, the velocities and
    accelerations of the spine's and legs' joints over several lags (all in the heading frame,
-   so they do not
-   depend on where the body stands or faces), the pelvis's turning rate over lags up to the
+   so they do not depend on where the body stands or faces), the pelvis's turning rate over lags up to the
    whole window (a spin twists and flares a skirt; with its signed square), and the square
    terms of the turning rate and speed that drive a skirt's flare (the centrifugal push grows
    with the square of the turning rate). It is predicted in the hips' frame (so it tilts with
@@ -61,11 +60,12 @@ _CHILD = {
 }  # fmt: skip
 #: The joints whose velocities and accelerations feed the residual: the spine and the legs, what
 #: drives a garment below the chest (the arms do not collide with one: ``core.body.colliders.
-#: arms_collide``). The arms' and head's motion only told the network about the clip it came
-#: from: without it, on the quick project's validation motions (mean / p95 mm, seeds 0 to 5,
-#: ``python benchmarks/joint2coarse_validation.py P --seeds 0 1 2 3 4 5``) 27.3 / 59 against
-#: 28.2 / 62, better at every seed. (Every joint's current pose stays in: without the arms'
-#: the error rose to 40.2 / 83.)
+#: arms_collide``). Chosen on the quick project's validation motions (mean / p95 mm, seeds 0 to
+#: 5, ``python benchmarks/joint2coarse_validation.py P --seeds 0 1 2 3 4 5``): 27.3 / 59 against
+#: 28.2 / 62 with every joint's, better at every seed. (Every joint's current pose stays in:
+#: without the arms' the error rose to 40.2 / 83.) Reported after, never chosen on: it cost the
+#: test twirl about 7 mm (README, "Joint2Coarse on motions it has never seen"); a spinning
+#: body's arms, far from the axis, carry its turning most strongly.
 DYNAMIC_JOINTS = (
     "Spine2", "Spine1", "Spine", "LeftUpLeg", "LeftLeg", "LeftFoot",
     "RightUpLeg", "RightLeg", "RightFoot",
