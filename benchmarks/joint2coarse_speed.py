@@ -124,6 +124,8 @@ def main() -> None:
         help="also time this many training steps per stage (0: skip)",
     )  # fmt: skip
     args = parser.parse_args()
+    if args.members < 1:
+        parser.error(f"--members must be at least 1, got {args.members}")
 
     base = Joint2CoarseConfig()
     if args.encoder_widths:

@@ -13,14 +13,14 @@ the heading frame, as the sum of
    front of the skirt with the legs, whatever the training clips were;
 2. a **residual** from features of the joints' history: the current pose, the velocities and
    accelerations of the spine's and legs' joints over several lags (all in the heading frame,
-   so they do not depend on where the body stands or faces), the pelvis's turning rate over lags up to the
-   whole window (a spin twists and flares a skirt; with its signed square), and the square
-   terms of the turning rate and speed that drive a skirt's flare (the centrifugal push grows
-   with the square of the turning rate). It is predicted in the hips' frame (so it tilts with
-   the pelvis) and fitted to the simulated proxy minus the base, by a small ReLU network
-   (``residual_widths``, trained with torch in seconds, its output a linear basis of the
-   training residuals folded into its last layer) or, with no hidden layer, linearly in closed
-   form (ridge regression, ``ridge``).
+   so they do not depend on where the body stands or faces), the pelvis's turning rate over
+   lags up to the whole window (a spin twists and flares a skirt; with its signed square), and
+   the square terms of the turning rate and speed that drive a skirt's flare (the centrifugal
+   push grows with the square of the turning rate). It is predicted in the hips' frame (so it
+   tilts with the pelvis) and fitted to the simulated proxy minus the base, by small ReLU
+   networks (``residual_widths``, trained with torch in seconds, ``residual_members`` of them
+   averaged, their outputs weights of the training residuals' principal components, ``basis``)
+   or, with no hidden layer, linearly in closed form (ridge regression, ``ridge``).
 
 Both parts are a few matrix products per frame, so it streams in about 0.9 ms a frame for a
 2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
