@@ -1,11 +1,13 @@
 """A renderer or a baseline on a project's validation motion: what its settings are chosen on.
 
 Usage: ``python benchmarks/renderer_validation.py PROJECT --method ours|pix2pix|dnr|dnr-gan
-[--set KEY=VALUE ...] [--seeds 0 1] [--json]``
+[--set KEY=VALUE ...] [--seeds 0 1] [--source sim|joint2coarse] [--json]``
 
 Trains the method as the project would (its preset and settings; ``--set`` changes one field of
 the method's configuration, as ``dng train renderer`` / ``dng train baselines`` read it, e.g.
-``--set lr_g=2e-4 --set lr_decay_from=0.5``) on the project's data set, once per ``--seeds``,
+``--set lr_g=2e-4 --set lr_decay_from=0.5``) on the project's data set (its training motion's
+images over the proxy ``--source`` names: the simulated one, or Joint2Coarse's prediction of it;
+default the project's ``renderer_source``), once per ``--seeds``,
 in a temporary folder: the project's models are left as they are. Then scores it on the
 renderers' validation motion (protocol V, ``renderer_validation``: its own cameras) on
 Joint2Coarse's proxy and on the simulated one, and prints the garment region's MSE and SSIM,
@@ -57,6 +59,9 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--seeds", type=int, nargs="+", default=None, help="default: the project's")
     ap.add_argument("--motion", help="the validation motion, for a project made before the split")
+    ap.add_argument(
+        "--source", choices=list(SOURCES), help="the proxy it trains on (default: the project's)"
+    )
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
 
@@ -66,6 +71,8 @@ def main() -> None:
         config = project_config(project)
         if args.motion:
             config = replace(config, renderer_validation=args.motion)
+        if args.source:
+            config = replace(config, renderer_source=args.source)
         validation = renderer_validation_motion(config)
     except InputError as exc:
         ap.error(str(exc))
@@ -111,13 +118,17 @@ def main() -> None:
         for src in SOURCES
     }
     out = {
-        "method": args.method, "changes": changes, "motion": validation.name,
+        "method": args.method, "changes": changes, "source": config.renderer_source,
+        "motion": validation.name,
         "config": cfg.to_dict(), "runs": runs, "mean_over_seeds": mean,
     }  # fmt: skip
     if args.json:
         print(json.dumps(out, indent=1))
         return
-    print(f"{args.method} on {validation.name} (validation), settings changed: {changes or 'none'}")
+    print(
+        f"{args.method} on {validation.name} (validation), trained over the proxy "
+        f"'{config.renderer_source}', settings changed: {changes or 'none'}"
+    )
     for run in runs + [{"seed": "all", "figures": mean}]:
         for src, f in run["figures"].items():
             trained = f", trained in {run['train_s']:.0f} s" if "train_s" in run else ""

@@ -299,6 +299,16 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             f"{_schedule(r.lr_g, r.lr_decay_from)} (D {r.lr_d:g})",
             "a few hundred steps: measured in `lr_decay_from`'s docstring",
         )
+    if config.renderer_source == "joint2coarse":
+        add(
+            "training",
+            "the renderer trains on the training motion's simulated coarse garment",
+            "every renderer and baseline trains on Joint2Coarse's prediction of it (the proxy "
+            "they are shown at test time)",
+            "chosen on the validation motion: lower garment-region MSE for every method, on "
+            "Joint2Coarse's proxy and on the simulated one (the quick preset's comment in "
+            "pipeline/config.py)",
+        )
     if config.renderer_validation:
         add(
             "evaluation",

@@ -41,6 +41,10 @@ def test_rows_follow_the_settings():
     rows = {d.paper: d.here for d in deviations(full)}
     assert "L1 10, perceptual 10, feature matching 5, GAN 0.5" not in rows
     assert rows["the detailed garment simulated (Marvelous Designer)"].startswith("simulated")
+    # training on Joint2Coarse's prediction is a deviation; on the simulation it is none
+    trained_on = "the renderer trains on the training motion's simulated coarse garment"
+    assert "Joint2Coarse's prediction" in {d.paper: d.here for d in deviations(quick)}[trained_on]
+    assert trained_on not in {d.paper for d in deviations(replace(quick, renderer_source="sim"))}
 
 
 def test_methods_count_their_parameters():

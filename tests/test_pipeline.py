@@ -181,7 +181,7 @@ def test_renderer_stage_trains_and_reports(smoke):
     out, report = smoke
     r = report["renderer"]
     assert r["steps"] == PRESETS["smoke"].renderer_steps and r["skipped_steps"] == 0
-    assert r["source"] == "sim" and r["samples"] > 0
+    assert r["source"] == PRESETS["smoke"].renderer_source == "joint2coarse" and r["samples"] > 0
     config, net, disc = load_model(out / "renderer" / "renderer.pt")
     assert config.image_size == PRESETS["smoke"].image_size and disc is not None
     rows = read_loss_log(out / "renderer" / "renderer_loss.csv")

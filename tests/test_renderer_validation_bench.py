@@ -27,6 +27,7 @@ def test_the_bench_reproduces_the_projects_validation_figures(smoke_project, tmp
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout)
     assert out["motion"] == "val-walk" and [r["seed"] for r in out["runs"]] == [0]
+    assert out["source"] == "joint2coarse"  # the project's renderer_source
     # Same settings, same seed: the project's own model scores the same on V (eval/report.json).
     scored = json.loads((project / "eval" / "report.json").read_text())["validation"]["methods"]
     for src, name in (("joint2coarse", "dnr-gan"), ("sim", "dnr-gan (simulated proxy)")):
@@ -41,8 +42,18 @@ def test_a_changed_setting_trains_another_model_and_says_so(smoke_project, tmp_p
     shutil.copytree(smoke_project, project, symlinks=True)
     run = _run(str(project), "--method", "ours", "--set", "lr_decay_from=1.0", "--seeds", "0", "1")
     assert run.returncode == 0, run.stderr
-    assert "ours on val-walk (validation), settings changed: {'lr_decay_from': 1.0}" in run.stdout
+    assert (
+        "ours on val-walk (validation), trained over the proxy 'joint2coarse', settings changed: "
+        "{'lr_decay_from': 1.0}" in run.stdout
+    )
     assert run.stdout.count("seed 0 ") == 2 and run.stdout.count("seed all") == 2
+    # the simulated proxy instead of the project's: another model, other figures
+    run = _run(str(project), "--method", "dnr", "--source", "sim", "--json")
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    scored = json.loads((project / "eval" / "report.json").read_text())["validation"]["methods"]
+    assert out["source"] == "sim"
+    assert out["runs"][0]["figures"]["sim"]["mse"] != scored["dnr (simulated proxy)"]["mse"]["mean"]
 
 
 def test_a_project_without_a_validation_motion_is_told_what_to_give(smoke_project, tmp_path):
