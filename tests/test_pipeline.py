@@ -191,7 +191,7 @@ def test_renderer_stage_trains_and_reports(smoke):
     assert list((out / "renderer" / "previews").glob("step_*.png"))
 
 
-def test_test_sets_come_from_unseen_cameras(smoke):
+def test_test_sets_come_from_unseen_cameras(smoke, tmp_path):
     from training.dataset import GarmentDataset
 
     out, _ = smoke
@@ -207,6 +207,15 @@ def test_test_sets_come_from_unseen_cameras(smoke):
         assert s["proxy_mask"].sum() > 0 and s["target_mask"].sum() > 0
     with pytest.raises(InputError, match="run the testset stage first"):
         GarmentDataset(out, split="walk")
+    # one mapping from a proxy source to its file, for the data set and the stages alike
+    with pytest.raises(InputError, match="source must be 'sim' or 'joint2coarse', got 'nope'"):
+        GarmentDataset(out, source="nope")
+    alone = tmp_path / "index-only" / "testset" / "twirl"  # a test set without its proxies
+    alone.mkdir(parents=True)
+    (alone / "samples.json").write_bytes((out / "testset" / "twirl" / "samples.json").read_bytes())
+    with pytest.raises(InputError, match="no Joint2Coarse prediction of twirl") as err:
+        GarmentDataset(alone.parents[1], source="joint2coarse", split="twirl")
+    assert "joint2coarse/pred-twirl.npz" in str(err.value)
 
 
 def test_print_config_shows_the_resolved_settings_and_changes_nothing(smoke, capsys):

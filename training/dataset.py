@@ -39,6 +39,18 @@ def sample_name(t: int, k: int) -> str:
     return f"t{t:05d}_v{k:02d}"
 
 
+def proxy_source_file(project_root: str | Path, source: str, motion_name: str) -> Path:
+    """The cache of a motion's proxy that ``source`` names: ``sim`` (its simulation,
+    ``sim/NAME-proxy/cache.npz``) or ``joint2coarse`` (Joint2Coarse's prediction of it,
+    ``joint2coarse/pred-NAME.npz``)."""
+    root = Path(project_root)
+    if source == "sim":
+        return root / "sim" / f"{motion_name}-proxy" / "cache.npz"
+    if source == "joint2coarse":
+        return root / "joint2coarse" / f"pred-{motion_name}.npz"
+    raise InputError(f"source must be 'sim' or 'joint2coarse', got {source!r}")
+
+
 @dataclass(frozen=True)
 class ProxyFrames:
     """The proxy as the rasterizer needs it, for every frame of a clip.
@@ -110,8 +122,7 @@ class GarmentDataset:
             raise InputError(f"no data set here: run the {stage} stage first", index_path)
         index = json.loads(index_path.read_text())
         motion_name = index["motion"]
-        if source not in ("sim", "joint2coarse"):
-            raise InputError(f"source must be 'sim' or 'joint2coarse', got {source!r}")
+        source_file = proxy_source_file(self.root, source, motion_name)
         if proxy_positions is not None:
             cache = index_path  # what messages about the positions' frame count name
             positions = np.asarray(proxy_positions)
@@ -121,15 +132,11 @@ class GarmentDataset:
                 )
             if not np.isfinite(positions).all():
                 raise InputError("proxy positions hold NaN or infinite values", cache)
-        elif source == "sim":
-            cache = self.root / "sim" / f"{motion_name}-proxy" / "cache.npz"
-            if not cache.is_file():
-                raise InputError("no simulated proxy cache", cache)
-            positions = np.load(cache)["positions"]
         else:
-            cache = self.root / "joint2coarse" / f"pred-{motion_name}.npz"
+            cache = source_file
             if not cache.is_file():
-                raise InputError(f"no Joint2Coarse prediction of {motion_name}", cache)
+                what = "simulated proxy cache" if source == "sim" else "Joint2Coarse prediction"
+                raise InputError(f"no {what} of {motion_name}", cache)
             positions = np.load(cache)["positions"]
         self.source = source
         self.split = split

@@ -40,7 +40,7 @@ from core.sim import load_cache
 from pipeline.config import project_config
 from pipeline.stages.evaluate import eval_methods
 from pipeline.stages.motions import load_project_motion
-from training.dataset import GarmentDataset
+from training.dataset import GarmentDataset, proxy_source_file
 
 HELP = "image error of every method as Joint2Coarse's proxy error shrinks to simulation's"
 
@@ -151,12 +151,13 @@ def project_motions(root: Path, config, names: list[str] | None) -> list[str]:
             )
         order = list(dict.fromkeys(names))
     for name in order:
-        for path, what in (
-            (root / "joint2coarse" / f"pred-{name}.npz", f"no Joint2Coarse prediction of {name}"),
-            (root / "sim" / f"{name}-proxy" / "cache.npz", f"no simulated proxy of {name}"),
+        for source, what in (
+            ("joint2coarse", "Joint2Coarse prediction"),
+            ("sim", "simulated proxy"),
         ):
+            path = proxy_source_file(root, source, name)
             if not path.is_file():
-                raise InputError(what, path)
+                raise InputError(f"no {what} of {name}", path)
     return order
 
 

@@ -77,7 +77,7 @@ from core.sim import SimConfig
 from core.sim.config import QUALITY
 from pipeline.config import project_config, renderer_config
 from pipeline.playback import Playback, load_motion_for
-from training.dataset import GarmentDataset
+from training.dataset import GarmentDataset, proxy_source_file
 
 HELP = "speed vs accuracy on a trained project: resolution x width, proxy size, neural vs sim"
 
@@ -270,10 +270,9 @@ def check_project(root: Path, motion: str | None) -> tuple[object, str]:
         raise InputError(
             f"no test set for motion {motion!r}; have {', '.join(sorted(order))}", root / "testset"
         )
-    if not (root / "joint2coarse" / f"pred-{motion}.npz").is_file():
-        raise InputError(
-            f"no Joint2Coarse prediction of {motion}", root / "joint2coarse" / f"pred-{motion}.npz"
-        )
+    pred = proxy_source_file(root, "joint2coarse", motion)
+    if not pred.is_file():
+        raise InputError(f"no Joint2Coarse prediction of {motion}", pred)
     return config, motion
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 from core.fileio import write_json
 from core.project import Project
 from pipeline.config import Log, PipelineConfig, baseline_config, quiet
-from pipeline.stages.renderer import plot_losses, proxy_source_file, read_loss_log
-from training.dataset import GarmentDataset
+from pipeline.stages.renderer import plot_losses, read_loss_log
+from training.dataset import GarmentDataset, proxy_source_file
 
 
 def stage_baseline(
@@ -24,7 +24,7 @@ def stage_baseline(
     from training.baselines import train_baseline
 
     cfg = baseline_config(config, kind)
-    source_file = proxy_source_file(project, config.renderer_source, config.train_motion.name)
+    source_file = proxy_source_file(project.root, config.renderer_source, config.train_motion.name)
     stage = f"baselines/{kind}"
     params = {"kind": kind, "baseline": cfg.to_dict(), "source": config.renderer_source}
 

@@ -9,20 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import InputError
 from core.fileio import atomic_path, write_json
 from core.project import Project
 from pipeline.config import Log, PipelineConfig, quiet, renderer_config
 from training.csvlog import read_loss_log
-from training.dataset import GarmentDataset
-
-
-def proxy_source_file(project: Project, source: str, motion_name: str) -> Path:
-    if source == "sim":
-        return project.path(f"sim/{motion_name}-proxy", "cache.npz")
-    if source == "joint2coarse":
-        return project.path("joint2coarse", f"pred-{motion_name}.npz")
-    raise InputError(f"renderer_source must be 'sim' or 'joint2coarse', got {source!r}")
+from training.dataset import GarmentDataset, proxy_source_file
 
 
 def stage_renderer(
@@ -48,7 +39,7 @@ def stage_renderer(
 
     cfg = renderer_config(config).replace(**(overrides or {}))
     train = config.train_motion.name
-    source_file = proxy_source_file(project, config.renderer_source, train)
+    source_file = proxy_source_file(project.root, config.renderer_source, train)
     index = project.path("dataset", "samples.json")
     params = {"renderer": cfg.to_dict(), "source": config.renderer_source}
 
