@@ -141,7 +141,13 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the detailed garment simulated (Marvelous Designer)",
             "the proxy simulated (newton, Style3D, "
             + steps
-            + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}); the detailed target embedded in "
+            + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}"
+            + (
+                ", kept off the body by the depth of the target's layers beneath it"
+                if config.layer_thickness
+                else ""
+            )
+            + "); the detailed target embedded in "
             "it: its details keep their offsets, no secondary motion of their own"
             + (
                 "; its inner layers pushed out of the body's capsules where they would sink in"

@@ -30,6 +30,7 @@ from core.project import Project
 from core.sim import load_cache, save_cache
 from pipeline.config import Log, MotionSpec, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import motion_from_spec
+from pipeline.stages.simulate import proxy_thickness
 
 #: Frames of a procedural kind when ``--frames`` is not given (5 s at 30 fps).
 DEFAULT_KIND_FRAMES = 150
@@ -124,7 +125,12 @@ def simulate_cached(
 
     mesh, proxy_file = project_proxy(project)
     sim_cfg = sim_config(config)
-    params = {"sim": sim_cfg.as_dict(), "body": asdict(config.body)}
+    thickness = proxy_thickness(project, mesh) if config.layer_thickness else None
+    params = {
+        "sim": sim_cfg.as_dict(),
+        "body": asdict(config.body),
+        "layer_thickness_mm": None if thickness is None else np.round(1e3 * thickness, 3).tolist(),
+    }
     key = simulation_key(mesh.vertices, mesh.faces, motion, params)
     folder = (cache_root or scratch_dir()) / key[:32]
     cache_file, report_file = folder / "cache.npz", folder / "report.json"
@@ -135,7 +141,9 @@ def simulate_cached(
         except (InputError, ValueError, OSError):
             log(f"  cached simulation in {folder} is unreadable: simulating again")
     log(f"  simulating the proxy ({motion.num_frames} frames; cached in {folder})")
-    cache, report = simulate(mesh, motion, config.body, sim_cfg, path=proxy_file)
+    cache, report = simulate(
+        mesh, motion, config.body, sim_cfg, path=proxy_file, thickness=thickness
+    )
     folder.mkdir(parents=True, exist_ok=True)
     save_cache(cache_file, cache)
     write_json(report_file, report.as_dict())

@@ -45,6 +45,12 @@ def test_rows_follow_the_settings():
     trained_on = "the renderer trains on the training motion's simulated coarse garment"
     assert "Joint2Coarse's prediction" in {d.paper: d.here for d in deviations(quick)}[trained_on]
     assert trained_on not in {d.paper for d in deviations(replace(quick, renderer_source="sim"))}
+    # the proxy's layer thickness is named in the ground truth only when it is on
+    truth = "the detailed garment simulated (Marvelous Designer)"
+    layered = "kept off the body by the depth of the target's layers"
+    assert layered in {d.paper: d.here for d in deviations(quick)}[truth]
+    thin = replace(quick, layer_thickness=False)
+    assert layered not in {d.paper: d.here for d in deviations(thin)}[truth]
 
 
 def test_methods_count_their_parameters():

@@ -123,3 +123,17 @@ def test_contact_keeps_an_inner_layer_out_of_the_body_without_tearing_it():
     assert far.any() and np.array_equal(kept[0, far], free[0, far])  # only the contact moved
     with pytest.raises(InputError, match="contact capsules"):
         drive(e, np.concatenate([frames, frames]), BodyContact(ends, radii))
+
+
+def test_shortening_moves_only_the_ends_the_contact_step_may_move():
+    from core.sim.embed import _shorten
+
+    x = np.array([[0.0, 0, 0], [2.0, 0, 0], [4.0, 0, 0], [5.0, 0, 0]])
+    edges = np.array([[0, 1], [1, 2], [2, 3]])
+    limit = np.array([1.0, 2.0, 0.5])
+    movable = np.array([False, True, True, True])
+    hit = _shorten(x, edges, limit, movable)
+    # 0-1: the fixed end stays, the other takes the whole correction; 1-2 is at its limit;
+    # 2-3: both ends movable, each moves half
+    np.testing.assert_allclose(x[:, 0], [0.0, 1.0, 4.25, 4.75])
+    assert sorted(hit.tolist()) == [1, 2, 3]

@@ -73,6 +73,11 @@ def register(subparsers) -> None:
         help="drive the garment by this proxy mesh's simulation (its cache) instead",
     )  # fmt: skip
     p.add_argument(
+        "--layers", metavar="TARGET",
+        help="the garment is this layered TARGET's proxy: keep each vertex off the body by the "
+        "depth of TARGET's layers beneath it (as dng demo simulates a project's proxy)",
+    )  # fmt: skip
+    p.add_argument(
         "--no-contact", action="store_true",
         help="with --embed-in and --motion: measure the garment's penetration into the body "
         "but do not keep it out",
@@ -176,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.no_contact and not (args.embed_in and args.motion):
         raise InputError("--no-contact goes with --embed-in and --motion (the body to measure)")
+    if args.layers and args.embed_in:
+        raise InputError("--layers simulates a proxy; --embed-in drives a garment by one: not both")
     if args.embed_in:
         return _embed(args, garment, out, shape)
 
@@ -206,8 +213,16 @@ def run(args: argparse.Namespace) -> int:
     # A file's UV seams are split vertices: weld them so the cloth is one piece, and map the
     # result back so the cache has the file's vertices in the file's order.
     welded, index = weld_mesh(garment)
+    thickness = None
+    if args.layers:
+        from core.sim.thickness import layer_thickness
+
+        target, tpath = _garment(args.layers, shape)
+        thickness = layer_thickness(welded.vertices, welded.faces, target.vertices, tpath)
     with contextlib.redirect_stdout(sys.stderr if args.json else sys.stdout):
-        cache, report = simulate(welded, motion, shape, config, path=gpath, progress=progress)
+        cache, report = simulate(
+            welded, motion, shape, config, path=gpath, progress=progress, thickness=thickness
+        )
     if welded.num_vertices != garment.num_vertices:
         cache = unweld_cache(cache, index, garment.faces)
     save_cache(out, cache)

@@ -34,6 +34,7 @@ import numpy as np
 from core.body.colliders import (
     BodyCapsules,
     arms_collide,
+    capsule_distance,
     garment_capsules,
     is_arm,
     penetration_depths,
@@ -266,7 +267,14 @@ class _Scene:
     """The newton model, solver and states of one simulation (internal)."""
 
     def __init__(
-        self, garment: Mesh, config: SimConfig, capsules, pins, seams: Seams, m0: np.ndarray
+        self,
+        garment: Mesh,
+        config: SimConfig,
+        capsules,
+        pins,
+        seams: Seams,
+        m0: np.ndarray,
+        thickness: np.ndarray | None = None,
     ):
         import warp as wp
 
@@ -323,6 +331,11 @@ class _Scene:
         if config.solver == "vbd":
             b.color(include_bending=True)
         self.model = m = b.finalize(device=self.device)
+        if thickness is not None:  # each vertex kept off the body by the layers beneath it
+            radius = m.particle_radius.numpy()
+            radius[self.first_particle :] += thickness.astype(np.float32)
+            m.particle_radius = wp.array(radius, dtype=wp.float32, device=self.device)
+            m.particle_max_radius = float(radius.max())
         m.soft_contact_ke = config.contact_ke
         m.soft_contact_kd = 1.0e-2
         m.soft_contact_mu = fab.friction
@@ -627,6 +640,8 @@ class Prepared:
     rest_lengths: np.ndarray
     """(E,) float64: their rest lengths."""
     notes: list
+    thickness: np.ndarray | None = None
+    """(V,) float64 metres each vertex is kept off the body beyond the margin, or None."""
 
     def step(self, a: int, b: int) -> None:
         """Solver steps ``a``..``b`` of the drive, as :func:`simulate` runs them (no checks)."""
@@ -638,12 +653,17 @@ class Prepared:
 
 
 def prepare(
-    garment: Mesh, motion, shape: BodyShape, config: SimConfig | None = None, path=None
+    garment: Mesh,
+    motion,
+    shape: BodyShape,
+    config: SimConfig | None = None,
+    path=None,
+    thickness: np.ndarray | None = None,
 ) -> Prepared:
     """Build the scene of ``garment`` under ``motion`` (the setup of :func:`simulate`, whose
     arguments these are): the body drive, colliders, pins, seams, the solver and every step's
     capsule poses. ``InputError`` for a motion not on the mannequin, a garment with nothing to
-    pin or a zero-length edge."""
+    pin, a zero-length edge or a ``thickness`` not (V,) finite and >= 0."""
     config = SimConfig() if config is None else config
     skeleton = mannequin_skeleton(shape)
     rotations, roots = motion_arrays(skeleton, motion, path)
@@ -682,12 +702,39 @@ def prepare(
     if config.chebyshev_rho is None:
         rho = 0.0 if config.self_collision else CHEBYSHEV_RHO
         config = replace(config, chebyshev_rho=rho)
-    scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0])
+    if thickness is not None:
+        thickness = contact_thickness(garment, capsules, config, thickness, path)
+        notes.append(
+            f"kept off the body by the layers beneath it: up to {1e3 * thickness.max():.0f} mm "
+            f"(mean {1e3 * thickness.mean():.0f}) beyond the {1e3 * config.collision_margin:.0f} "
+            "mm margin"
+        )
+    scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0], thickness)
     poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
     velocities = scene._body_vel(poses[:-1], poses[1:], drive.dt)
     return Prepared(
-        scene, drive, poses, velocities, config, capsules, pins, seams, edges, rest_len, notes
+        scene, drive, poses, velocities, config, capsules, pins, seams, edges, rest_len, notes,
+        thickness,
+    )  # fmt: skip
+
+
+def contact_thickness(
+    garment: Mesh, capsules: BodyCapsules, config: SimConfig, thickness: np.ndarray, path=None
+) -> np.ndarray:
+    """``thickness`` (V,) metres (:func:`core.sim.thickness.layer_thickness`), each vertex's
+    capped at its room from the body at rest beyond ``config.collision_margin``, so the rest
+    drape does not start inside its own shell: (V,) float64 >= 0."""
+    t = np.asarray(thickness, np.float64)
+    if t.shape != (garment.num_vertices,) or not np.isfinite(t).all() or (t < 0).any():
+        raise InputError(
+            f"thickness must be (V,) = ({garment.num_vertices},) finite metres >= 0, got shape "
+            f"{t.shape}",
+            path,
+        )
+    room = capsule_distance(
+        garment.vertices.astype(np.float64), capsules.endpoints.astype(np.float64), capsules.radii
     )
+    return np.clip(np.minimum(t, room - config.collision_margin), 0.0, None)
 
 
 def simulate(
@@ -698,6 +745,7 @@ def simulate(
     *,
     path=None,
     progress: Callable[[int, int], None] | None = None,
+    thickness: np.ndarray | None = None,
 ) -> tuple[SimCache, SimReport]:
     """Simulate ``garment`` (in its rest pose on the rest mannequin) under ``motion``.
 
@@ -709,6 +757,9 @@ def simulate(
     config : SimConfig (default ``SimConfig()``)
     path : the garment's file, named in errors
     progress : called with (frames done, total) after every kept clip frame
+    thickness : (V,) float metres or None, the depth of a layered garment's layers beneath each
+        vertex of its proxy (:mod:`core.sim.thickness`): added to the vertex's contact margin,
+        up to its room from the body at rest
 
     Returns
     -------
@@ -725,7 +776,7 @@ def simulate(
     """
     t_start = time.perf_counter()
     shape = BodyShape() if shape is None else shape
-    run = prepare(garment, motion, shape, config, path)
+    run = prepare(garment, motion, shape, config, path, thickness)
     scene, drive, config = run.scene, run.drive, run.config
     capsules, pins, seams = run.capsules, run.pins, run.seams
     edges, rest_len, notes, n = run.edges, run.rest_lengths, run.notes, drive.steps_per_frame
@@ -821,6 +872,9 @@ def simulate(
         "pinned_indices": pins.indices.tolist(),
         "sewn_vertices": int(len(seams.indices)),
         "colliders": list(capsules.names),
+        "layer_thickness_mm": None
+        if run.thickness is None
+        else {"mean": 1e3 * float(run.thickness.mean()), "max": 1e3 * float(run.thickness.max())},
         "solver": SOLVER_CLASSES[config.solver],
         "newton_version": _newton_version(),
     }

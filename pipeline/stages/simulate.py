@@ -53,15 +53,24 @@ def stage_simulate(
     )
     motion_file = project.path("motions", f"{motion_name}.bvh")
     sim_cfg = sim_config(config)
-    params = {"sim": asdict(sim_cfg), "body": asdict(config.body), "which": which}
+    layered = which == "proxy" and config.layer_thickness
+    params = {
+        "sim": asdict(sim_cfg),
+        "body": asdict(config.body),
+        "which": which,
+        "layer_thickness": layered,
+    }
     stage = f"sim/{motion_name}-{which}"
+    inputs = [garment, motion_file] + ([project.path("garment", "target.obj")] if layered else [])
 
     def work(out: Path) -> list[str]:
         mesh, _ = load_mesh(garment)
         motion = load_project_motion(project, motion_name)
+        thickness = proxy_thickness(project, mesh) if layered else None
         cache, report = simulate(
-            mesh, motion, config.body, sim_cfg, path=garment, progress=progress
-        )
+            mesh, motion, config.body, sim_cfg, path=garment, progress=progress,
+            thickness=thickness,
+        )  # fmt: skip
         save_cache(out / "cache.npz", cache)
         write_json(out / "report.json", asdict(report))
         log(
@@ -70,8 +79,19 @@ def stage_simulate(
         )
         return ["cache.npz", "report.json"]
 
-    project.run_stage(stage, params, [garment, motion_file], work)
+    project.run_stage(stage, params, inputs, work)
     return project.path(stage, "cache.npz")
+
+
+def proxy_thickness(project: Project, proxy: Mesh) -> np.ndarray:
+    """How deep the project's target (``garment/target.obj``) lies beneath each vertex of its
+    ``proxy`` at rest: (Vp,) metres (:func:`core.sim.thickness.layer_thickness`), what the
+    proxy's simulation keeps it off the body by (``PipelineConfig.layer_thickness``)."""
+    from core.sim.thickness import layer_thickness
+
+    target_file = project.path("garment", "target.obj")
+    target, _ = load_mesh(target_file)
+    return layer_thickness(proxy.vertices, proxy.faces, target.vertices, target_file)
 
 
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
