@@ -534,10 +534,12 @@ def _ground_truth_markdown(report: dict) -> list[str]:
     targets = {k: v for k, v in report["simulation"].items() if k.endswith("-target")}
     if not targets:
         return []
-    lines = [
-        "",
-        "## Ground truth: the detailed target",
-        "",
+    lines = ["", "## Ground truth: the detailed target", ""]
+    proxies = [v for k, v in report["simulation"].items() if k.endswith("-proxy")]
+    layered = [n for v in proxies[:1] for n in v.get("notes", []) if "layers beneath" in n]
+    if layered:
+        lines += [f"The proxy it is embedded in is simulated {layered[0]}.", ""]
+    lines += [
         "| clip | mode | stretch max / p99 | compression max / p99 | torn edges (stretch > 1) |",
         "| --- | --- | --- | --- | --- |",
     ]

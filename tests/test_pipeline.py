@@ -68,6 +68,10 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
     # The ground truth names its mode, its strain and shows a contact sheet per clip.
     assert "## Ground truth: the detailed target" in md and "embedded in the proxy" in md
+    # ... in a proxy kept off the body by the layers beneath it, which its report says
+    assert "simulated kept off the body by the layers beneath it" in md
+    notes = report["simulation"]["dance-proxy"]["notes"]
+    assert any(n.startswith("kept off the body by the layers") for n in notes)
     for clip in ("dance", "val-walk", "twirl", "cmu-01_01"):
         target = report["simulation"][f"{clip}-target"]
         assert target["mode"] == "embed" and 0 <= target["strain_p99"] <= target["strain_max"]

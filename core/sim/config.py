@@ -129,6 +129,13 @@ class SimConfig:
     through the skirt instead."""
     collision_margin: float = 0.004
     """Thickness kept between cloth and body (metres): the particle radius in contacts."""
+    layer_friction: float = 0.1
+    """Friction against the body of a proxy kept off it by the layers beneath it (``thickness``
+    of :func:`core.sim.simulate.simulate`), in place of the fabric's: the envelope touches the
+    body through those layers, which slide. With the fabric's (cotton, 0.35) the thick contact
+    snagged the quick project's proxy on a kicking leg and dragged it to the ankle (Boxing_Toes,
+    the window at 22 s, frame 60: stretch 1.12, a blow-up) at every thickness tried, down to 30
+    mm; at 0.1 all 28 of the project's clips ran."""
     self_contact_thickness: float = 0.003
     """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
     It must stay below the gaps a layered garment is built with (the built-in templates stack

@@ -286,6 +286,8 @@ class _Scene:
         self.wp = wp
         self.config = config
         fab = config.material
+        if thickness is not None:  # the envelope meets the body through its sliding layers
+            fab = replace(fab, friction=config.layer_friction)
         self.device = wp.get_device(config.device)
         self.caps_c, self.caps_r, half = _capsule_frames(capsules.endpoints.astype(np.float64))
         self.caps_joint = capsules.joints
@@ -707,7 +709,7 @@ def prepare(
         notes.append(
             f"kept off the body by the layers beneath it: up to {1e3 * thickness.max():.0f} mm "
             f"(mean {1e3 * thickness.mean():.0f}) beyond the {1e3 * config.collision_margin:.0f} "
-            "mm margin"
+            f"mm margin, at friction {config.layer_friction:g}"
         )
     scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0], thickness)
     poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
