@@ -53,6 +53,7 @@ from core.sim.cache import (
 )
 from core.sim.config import QUALITY, SimConfig
 from core.sim.preview import preview_sheet
+from core.sim.thickness import layer_thickness
 from templates.garments import make_garment
 
 
@@ -215,8 +216,6 @@ def run(args: argparse.Namespace) -> int:
     welded, index = weld_mesh(garment)
     thickness = None
     if args.layers:
-        from core.sim.thickness import layer_thickness
-
         target, tpath = _garment(args.layers, shape)
         thickness = layer_thickness(welded.vertices, welded.faces, target.vertices, tpath)
     with contextlib.redirect_stdout(sys.stderr if args.json else sys.stdout):

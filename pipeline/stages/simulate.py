@@ -20,6 +20,7 @@ from core.mesh import Mesh, load_mesh
 from core.project import Project
 from core.shading import contact_sheet, render_views, write_png
 from core.sim import SimCache, load_cache, save_cache
+from core.sim.thickness import layer_thickness
 from pipeline.config import Log, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import load_project_motion
 
@@ -87,8 +88,6 @@ def proxy_thickness(project: Project, proxy: Mesh) -> np.ndarray:
     """How deep the project's target (``garment/target.obj``) lies beneath each vertex of its
     ``proxy`` at rest: (Vp,) metres (:func:`core.sim.thickness.layer_thickness`), what the
     proxy's simulation keeps it off the body by (``PipelineConfig.layer_thickness``)."""
-    from core.sim.thickness import layer_thickness
-
     target_file = project.path("garment", "target.obj")
     target, _ = load_mesh(target_file)
     return layer_thickness(proxy.vertices, proxy.faces, target.vertices, target_file)
