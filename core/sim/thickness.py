@@ -22,7 +22,8 @@ on CMU 01_01 (0.378 / 0.080), 0.090 / 0.041 on the twirl and 0.112 / 0.053 on th
 window of CMU 01_03, with no torn edge and nothing inside the body; before the contact step
 its layers are 8.4 mm (dance) and 18.8 mm (CMU 01_01) inside at most, and the step adds no
 stretch. The proxy itself stretches more: max / p99 0.100 / 0.033 on the dance and 0.155 /
-0.040 on CMU 01_01 against 0.055 / 0.009 and 0.059 / 0.011, within cotton's 0.2.
+0.040 on CMU 01_01 against 0.055 / 0.009 and 0.059 / 0.011, within cotton's 0.2 (0.235 at most
+over the project's 28 clips, where the thin proxy reached 0.822 on a Boxing_Toes window).
 
 It overstates the layers where air lies between them: pressed, real layers close those gaps,
 and these cannot (the embedding keeps every layer's offset from the envelope). Half the depth
