@@ -133,9 +133,9 @@ class SimConfig:
     """Friction against the body of a proxy kept off it by the layers beneath it (``thickness``
     of :func:`core.sim.simulate.simulate`), in place of the fabric's: the envelope touches the
     body through those layers, which slide. With the fabric's (cotton, 0.35) the thick contact
-    snagged the quick project's proxy on a kicking leg and dragged it to the ankle (Boxing_Toes,
-    the window at 22 s, frame 60: stretch 1.12, a blow-up) at every thickness tried, down to 30
-    mm; at 0.1 all 28 of the project's clips ran."""
+    snagged the quick project's proxy on a kicking leg and dragged it to the ankle: ``dng demo``
+    at commit 9b7cead stopped at the Boxing_Toes window at 22 s (frame 60, stretch 1.12, a
+    blow-up); at 0.1 all 28 of the project's clips ran (``dng demo``, the README's /tmp/q42)."""
     self_contact_thickness: float = 0.003
     """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
     It must stay below the gaps a layered garment is built with (the built-in templates stack

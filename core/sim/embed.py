@@ -106,8 +106,9 @@ CONTACT_ROUNDS = 10
 #: after several (the module's docstring).
 CONTACT_SWEEPS = 5
 #: Vertices further than this (metres) outside the body are left to the embedding alone. With
-#: 0.05 instead, the module docstring's command on the quick project's dance gives a stretch max
-#: of 0.374 against 0.420 (p99 0.069 both, no penetration) and takes 88 s against 73 s.
+#: 0.05 instead, the module docstring's command on the quick project's dance gave a stretch max
+#: of 0.374 against 0.420 (p99 0.069 both, no penetration) and took 88 s against 73 s (with one
+#: shortening sweep a round, before ``CONTACT_SWEEPS``; not remeasured since).
 CONTACT_BAND_M = 0.02
 
 
@@ -397,7 +398,7 @@ def keep_out_of_body(
     # 2. Radially out of what it is still inside.
     deep = near[inside]
     x[deep] = push_out_of_capsules(x[deep], ends, radii, margin)
-    # 3. Edges it stretched shortened back, both ends alike, then out of the body again.
+    # 3. Edges it stretched shortened back (only movable ends move), then out of the body again.
     for _ in range(settings.rounds if len(edges) else 0):
         moved = np.zeros(len(x), bool)
         for _ in range(settings.sweeps):

@@ -26,9 +26,7 @@ stretch. The proxy itself stretches more: max / p99 0.100 / 0.033 on the dance a
 over the project's 28 clips, where the thin proxy reached 0.822 on a Boxing_Toes window).
 
 It overstates the layers where air lies between them: pressed, real layers close those gaps,
-and these cannot (the embedding keeps every layer's offset from the envelope). Half the depth
-(``thickness / 2``) left 52.6 mm of penetration for the contact step on CMU 01_01 and a stretch
-max of 0.240 (a run outside the pipeline, at cotton's friction).
+and these cannot (the embedding keeps every layer's offset from the envelope).
 """
 
 from __future__ import annotations
