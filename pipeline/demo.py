@@ -132,9 +132,10 @@ class _Progress:
     cost, does not set the pace); the nominal pace before any ran.
     """
 
-    def __init__(self, costs: list[float], out=sys.stderr, clock=time.perf_counter):
+    def __init__(self, costs: list[float], out=None, clock=time.perf_counter):
         self.eta = StageEta(costs, clock, default_pace=1.0, reused_below=0.1)
-        self.out, self.clock = out, clock
+        # sys.stderr as it is now, not as it was at import (a test's captured stream, closed since)
+        self.out, self.clock = (sys.stderr if out is None else out), clock
         self.start = self.eta.start
         self.stage_times: dict[str, float] = {}
 
