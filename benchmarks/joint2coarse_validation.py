@@ -14,7 +14,9 @@ them, never choose on them. ``--without`` leaves training motions out (names or 
 e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-validation`` trains
 on the validation motions too: how closely the model fits motions it has seen, against what it
 does on motions it has not (never a choice: a diagnosis). ``--no-turn-lags`` measures ours
-without the turning-rate features over longer lags (an ablation inside this process).
+without the turning-rate features over longer lags, ``--every-joint-dynamic`` with every
+joint's velocities and accelerations instead of ``DYNAMIC_JOINTS``' (ablations inside this
+process).
 """
 
 from __future__ import annotations
@@ -73,10 +75,17 @@ def main() -> None:
         "--no-turn-lags", action="store_true",
         help="ablation: ours without the pelvis's turning rate over longer lags (TURN_LAGS)",
     )  # fmt: skip
+    ap.add_argument(
+        "--every-joint-dynamic", action="store_true",
+        help="ablation: ours with every joint's velocities and accelerations (not DYNAMIC_JOINTS)",
+    )  # fmt: skip
     args = ap.parse_args()
+    if args.every_joint_dynamic:  # as --no-turn-lags: this process only
+        body_model._DYNAMIC = list(body_model._DESC.values())
     if args.no_turn_lags:  # an ablation of this process only: nothing is saved
         body_model.TURN_LAGS = ()
 
+    ablations = [f for f in ("every_joint_dynamic", "no_turn_lags") if getattr(args, f)]
     torch.set_num_threads(1)
     project = Project(args.project)
     config = project_config(project)
@@ -135,13 +144,16 @@ def main() -> None:
     }
     out = {
         "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
-        "fit_validation": args.fit_validation,
+        "fit_validation": args.fit_validation, "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
     }  # fmt: skip
     if args.json:
         print(json.dumps(out, indent=1))
         return
-    print(f"model={cfg.model}, settings changed: {changes or 'none'}")
+    print(
+        f"model={cfg.model}, settings changed: {changes or 'none'}"
+        + (f", ablations: {', '.join(ablations)}" if ablations else "")
+    )
     if args.fit_validation:
         print("trained on the validation motions too: these are fits, not predictions")
     if left_out:

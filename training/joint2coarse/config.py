@@ -131,7 +131,14 @@ class Joint2CoarseConfig(PlainConfig):
     At 1 the waistband fits best, but the predicted skirt comes out narrower than the simulated
     one and every method's images get worse; 0.5 keeps most of the gain and gives the best
     images. The twirl has no tilt, so it changes only within seed noise. Model files written
-    before this field existed read as 0."""
+    before this field existed read as 0.
+
+    That table was measured on a test clip. Chosen again on the quick preset's six validation
+    motions, on the ground truth with the layers' thickness (mean / p95 mm over them and seeds 0
+    to 2, ``python benchmarks/joint2coarse_validation.py P --seeds 0 1 2 --set model=paper --set
+    tilt_follow=F``, the library with ten replayed capture windows more than the preset keeps):
+    0: 42.6 / 95, 0.5: 42.3 / 96, 1: 40.8 / 92. The quick preset sets 1; the default stays 0.5
+    for the presets not measured so."""
     width_reference_vertices: int = 2048
     """Proxy vertex count at which ``encoder_widths`` apply in full. Smaller proxies scale every
     shape-network width by ``n_vertices / width_reference_vertices`` (rounded up), never below
