@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -109,6 +110,11 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert len(costs) == len(report["stage_seconds"])
     names = list(report["stage_seconds"])
     assert names[0] == "motions" and names[-1].startswith("videos")
+    # With a core for each, the simulations ran two at a time; the table keeps the stages' order.
+    sims = [n for n in names if n.startswith("simulate ")]
+    assert sims[0] == "simulate dance (proxy)" and sims[-1].endswith("(target)")
+    if (os.cpu_count() or 1) >= 2:
+        assert report["simulation_processes"] == 2 and "simulations ran 2 at a time" in md
 
 
 def test_time_left_follows_the_pace_of_the_stages_that_ran():
