@@ -269,7 +269,7 @@ LIBRARY_VALIDATION: tuple[MotionSpec, ...] = (
     MotionSpec("val-cmu-01_03", "file", 100, path=str(CMU_0103_CLIP), start_s=33.0),
     MotionSpec("val-boxing", "file", 100, path=str(BOXING_CLIP), start_s=10.0),
     # Three more since the test twirl and CMU 01_01 moved against what the first three said
-    # (README, "This session's choices made the test split worse"): a spin as fast as the
+    # (README, "An earlier round's choices made the test split worse"): a spin as fast as the
     # twirl's turns, jumps (CMU 01_01 walks and jumps) and the one free window of Boxing_Toes.
     MotionSpec("val-idle-spin", "idle", 120, seed=40, amplitude=1.2, turn_deg_s=380.0),
     MotionSpec("val-jump", "jump", 120, seed=41, speed=1.1, amplitude=1.2, heading_deg=30.0),
