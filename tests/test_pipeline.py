@@ -184,6 +184,48 @@ def test_dataset_samples_match_the_renderer_contract(smoke):
         assert garment.any() and diff[garment].mean() > 0.05
 
 
+def test_motion_per_vertex_is_the_same_data(smoke, tmp_path):
+    """What a trainer on a GPU loads (training.loader.for_device): the same samples with the
+    motion features per vertex; interpolated, they are the loader's map, and training on them
+    logs the same losses."""
+    import torch
+
+    from tests.conftest import assert_close
+    from training.dataset import VERTEX_MOTION_SAMPLE_KEYS, GarmentDataset
+    from training.loader import for_device
+    from training.renderer import PRESETS as RENDERER_PRESETS
+    from training.renderer.data import RenderBatch
+    from training.renderer.train import collate_samples, train_renderer
+
+    out, _ = smoke
+    data = GarmentDataset(out, source="sim")
+    assert for_device(data, "cpu") is data
+    per_vertex = for_device(data, "cuda")  # a copy: no GPU needed to make it
+    assert per_vertex.motion_per_vertex and not data.motion_per_vertex
+    for i in (0, len(data) - 1):
+        dense, compact = data[i], per_vertex[i]
+        assert set(compact) == set(dense) - {"motion"} | set(VERTEX_MOTION_SAMPLE_KEYS)
+        assert all(torch.equal(compact[k], dense[k]) for k in dense if k != "motion")
+        batch = RenderBatch.from_dict(compact)
+        for j in range(3):
+            assert_close(batch.motion_frame(j)[0], dense["motion"][j], atol=1e-6)
+    collate_samples([per_vertex[0], per_vertex[1]], 95)  # checks the batch
+    cfg = RENDERER_PRESETS["tiny"].replace(image_size=PRESETS["smoke"].image_size, steps=3)
+    logs = [
+        train_renderer(d, tmp_path / name, cfg, progress=False).log_path.read_text()
+        for name, d in (("dense", data), ("per-vertex", per_vertex))
+    ]
+    rows = [[line.split(",") for line in log.splitlines()] for log in logs]
+    assert rows[0][0] == rows[1][0] and len(rows[0]) == len(rows[1]) > 1
+    for a, b in zip(rows[0][1:], rows[1][1:], strict=True):
+        assert np.allclose(
+            [float(x) for x in a if x not in ("", "off")],
+            [float(x) for x in b if x not in ("", "off")],
+            rtol=1e-4,
+            atol=1e-6,
+        ), (a, b)
+
+
 def test_renderer_stage_trains_and_reports(smoke):
     from training.csvlog import read_loss_log
     from training.renderer.train import load_model

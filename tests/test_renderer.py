@@ -167,6 +167,64 @@ def test_render_batch_contract():
         RenderBatch.from_dict({k: v for k, v in s.items() if k != "uv"})
 
 
+def test_render_batch_with_motion_per_vertex(rng):
+    """The per-vertex form of the motion features: interpolated where the batch is, equal to
+    the map the loader makes (core.features.interpolate), checked like the rest."""
+    from core.features import interpolate
+    from core.raster import Fragments
+    from training.renderer.data import motion_maps
+
+    v, size = 7, 8
+    faces = rng.integers(0, v, (5, 3))
+    face_id = rng.integers(-1, 5, (3, size, size))
+    bary = rng.dirichlet(np.ones(3), (3, size, size)).astype(np.float32)
+    feats = rng.random((3, v, 95), dtype=np.float32)
+    covered = face_id >= 0
+    s = {
+        "uv": torch.zeros(3, 2, size, size),
+        "proxy_mask": torch.from_numpy(covered[:, None].astype(np.float32)),
+        "target": torch.zeros(3, 3, size, size),
+        "background": torch.zeros(3, 3, size, size),
+        "target_mask": torch.zeros(3, 1, size, size),
+        "motion_corners": torch.from_numpy(
+            faces[np.where(covered, face_id, 0)].astype(np.int32).transpose(0, 3, 1, 2)
+        ),
+        "motion_weights": torch.from_numpy((bary * covered[..., None]).transpose(0, 3, 1, 2)),
+        "vertex_motion": torch.from_numpy(feats),
+    }
+    b = RenderBatch.from_dict(s)
+    assert b.motion is None and b.vertex_motion.shape == (1, 3, v, 95)
+    for j in range(3):
+        frags = Fragments(face_id[j], bary[j], np.zeros((size, size), np.float32))
+        want = interpolate(frags, faces, feats[j]).transpose(2, 0, 1)
+        assert_close(b.motion_frame(j)[0], want, atol=1e-6, what=f"frame {j}")
+    inp = b.generator_inputs(True)
+    assert inp["motion"].shape == (1, 95, size, size)
+    assert torch.equal(inp["motion_prev"], motion_maps(*(t[:, 0] for t in (
+        b.motion_corners, b.motion_weights, b.vertex_motion))))  # fmt: skip
+    assert b.to("cpu").motion is None and torch.equal(b.to("cpu").motion_corners, b.motion_corners)
+    bad = dict(s, motion_corners=s["motion_corners"] + v)
+    with pytest.raises(InputError, match=r"d\.pt: sample\['motion_corners'\] holds ids outside"):
+        RenderBatch.from_dict(bad, name="d.pt")
+    bad = dict(s, vertex_motion=torch.zeros(3, v, 94))
+    with pytest.raises(InputError, match=r"sample\['vertex_motion'\] must be \(B, 3, V, 95\)"):
+        RenderBatch.from_dict(bad)
+    with pytest.raises(InputError, match="missing"):  # neither form of the motion features
+        RenderBatch.from_dict({k: t for k, t in s.items() if k != "vertex_motion"})
+
+
+@pytest.mark.gpu
+def test_gpu_motion_maps_match_cpu(rng):
+    from training.renderer.data import motion_maps
+
+    corners = torch.from_numpy(rng.integers(0, 40, (2, 3, 16, 16)).astype(np.int32))
+    weights = torch.from_numpy(rng.random((2, 3, 16, 16), dtype=np.float32))
+    feats = torch.from_numpy(rng.random((2, 40, 95), dtype=np.float32))
+    cpu = motion_maps(corners, weights, feats)
+    gpu = motion_maps(corners.cuda(), weights.cuda(), feats.cuda()).cpu()
+    assert_close(gpu, cpu, atol=1e-6, what="motion maps")
+
+
 # -- losses ----------------------------------------------------------------------------------------
 
 

@@ -8,6 +8,7 @@ Joint2Coarse predictions (``source="joint2coarse"``), the switch the paper's tes
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,13 @@ SAMPLE_KEYS = {
     "target_mask": "(3, 1, H, W) float32: garment coverage in the ground truth",
     "proxy_shading": "(3, 1, H, W) float32: the proxy shaded grey from the camera, 0 off it "
     "(the Pix2Pix baseline's input; the neural renderer does not read it)",
+}
+#: What replaces ``motion`` in a data set made with ``motion_per_vertex=True``
+#: (:data:`training.renderer.data.VERTEX_MOTION_KEYS`).
+VERTEX_MOTION_SAMPLE_KEYS = {
+    "motion_corners": "(3, 3, H, W) int32: vertex ids of the covering face's corners, 0 off it",
+    "motion_weights": "(3, 3, H, W) float32: their barycentric weights, 0 off the proxy",
+    "vertex_motion": "(3, V, 95) float32: motion features per proxy vertex",
 }
 
 
@@ -101,6 +109,10 @@ class GarmentDataset:
         motion, rendered instead of the ``source``'s cache (which then only names them): what
         ``dng bench placement`` uses to render proxies between the simulated one and
         Joint2Coarse's
+    motion_per_vertex : samples carry the motion features per vertex with the rasterization
+        (:data:`VERTEX_MOTION_SAMPLE_KEYS`) instead of the (3, 95, H, W) map, for the trainer
+        to interpolate on its device (:func:`training.renderer.data.motion_maps`); what a
+        trainer on a GPU asks for (:meth:`with_motion_per_vertex`)
     """
 
     def __init__(
@@ -110,6 +122,7 @@ class GarmentDataset:
         features: FeatureConfig | None = None,
         split: str | None = None,
         proxy_positions: np.ndarray | None = None,
+        motion_per_vertex: bool = False,
     ):
         from core.motion.load import load_motion
         from training.joint2coarse import joint2coarse_inputs
@@ -140,6 +153,7 @@ class GarmentDataset:
             positions = np.load(cache)["positions"]
         self.source = source
         self.split = split
+        self.motion_per_vertex = motion_per_vertex
         self.proxy = load_proxy_frames(self.root, positions)
         self._seamless_faces = self.proxy.seam_map[self.proxy.faces]
         motion = load_motion(self.root / "motions" / f"{motion_name}.bvh")
@@ -158,16 +172,35 @@ class GarmentDataset:
     def __len__(self) -> int:
         return len(self.samples)
 
-    def proxy_maps(self, t: int, camera) -> dict[str, np.ndarray]:
+    def with_motion_per_vertex(self) -> GarmentDataset:
+        """The same samples with their motion features per vertex (see the class docstring)."""
+        other = copy.copy(self)
+        other.motion_per_vertex = True
+        return other
+
+    def proxy_maps(self, t: int, camera, motion_per_vertex: bool = False) -> dict[str, np.ndarray]:
         """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W) and grey
-        headlight shading (1, H, W) at frame t."""
+        headlight shading (1, H, W) at frame t; with ``motion_per_vertex`` the motion
+        features' per-vertex form (:data:`VERTEX_MOTION_SAMPLE_KEYS`, one frame) instead."""
         v = self.proxy.vertices(t)
         frags = rasterize(v, self.proxy.faces, camera)
         window = joint_window(self.joints, t, self.features.frame_offsets)
         feats = vertex_motion_features(v, window, self.features.sigma)
+        if motion_per_vertex:
+            covered = frags.face_id >= 0
+            corners = self.proxy.faces[np.where(covered, frags.face_id, 0)]  # (H, W, 3)
+            motion = {
+                "motion_corners": corners.astype(np.int32).transpose(2, 0, 1),
+                "motion_weights": (frags.barycentrics * covered[..., None])
+                .astype(np.float32)
+                .transpose(2, 0, 1),
+                "vertex_motion": feats.astype(np.float32),
+            }
+        else:
+            motion = {"motion": interpolate(frags, self.proxy.faces, feats).transpose(2, 0, 1)}
         return {
             "uv": interpolate(frags, self.proxy.faces, self.proxy.uvs).transpose(2, 0, 1),
-            "motion": interpolate(frags, self.proxy.faces, feats).transpose(2, 0, 1),
+            **motion,
             "proxy_mask": frags.mask[None].astype(np.float32),
             # Seam-free faces (same order): smooth normals across the UV seams.
             "proxy_shading": headlight_shading(
@@ -180,7 +213,7 @@ class GarmentDataset:
         from PIL import Image
 
         t, k, camera = self.samples[i]
-        frames = [self.proxy_maps(f, camera) for f in (t - 1, t, t + 1)]
+        frames = [self.proxy_maps(f, camera, self.motion_per_vertex) for f in (t - 1, t, t + 1)]
         out = {key: np.stack([fr[key] for fr in frames]) for key in frames[0]}
         w = camera.width
         base = self.folder / "samples" / sample_name(t, k)
@@ -192,12 +225,17 @@ class GarmentDataset:
         mask = np.asarray(Image.open(f"{base}_mask.png"), np.float32) / 255
         out["target_mask"] = np.stack([mask[None, :, j * w : (j + 1) * w] for j in range(3)])
         return {
-            key: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for key, v in out.items()
+            key: torch.from_numpy(
+                np.ascontiguousarray(v, np.int32 if v.dtype.kind == "i" else np.float32)
+            )
+            for key, v in out.items()
         }
 
     def contact_sheet(self, i: int, path: str | Path) -> None:
         """One sample's frames as a PNG: images, backgrounds, masks, proxy UV maps, a feature."""
-        s = self[i]
+        dense = copy.copy(self)
+        dense.motion_per_vertex = False
+        s = dense[i]
         tiles, labels = [], []
         for j, name in enumerate(("t-1", "t", "t+1")):
             img = (s["target"][j].numpy().transpose(1, 2, 0) * 255).round().astype(np.uint8)

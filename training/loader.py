@@ -84,6 +84,15 @@ class _Schedule:
             yield idx
 
 
+def for_device(dataset, device):
+    """The data set as a trainer on ``device`` loads it: on CUDA, with its motion features per
+    vertex when it can give them (``with_motion_per_vertex``; the GPU interpolates them, and the
+    batches are several times smaller to make, pass between processes, pin and copy); anywhere
+    else, as it is."""
+    per_vertex = getattr(dataset, "with_motion_per_vertex", None)
+    return per_vertex() if torch.device(device).type == "cuda" and per_vertex else dataset
+
+
 def batches(
     dataset,
     order: SampleOrder,

@@ -10,9 +10,18 @@ pinned memory on CUDA), batches copied to the device without blocking.
 
 The batches are **synthetic**: random tensors of exactly the shapes of the data set's samples
 (frames t-1, t, t+1 of UV (2), motion features (95), proxy mask, target, background and target
-mask at the given size), made in the workers; speed does not depend on the pixel values.
-"Waiting" is the time a step spends in ``next(loader)`` and the copy to the device: on CUDA the
-GPU is idle then, as each step ends by reading its losses back.
+mask at the given size); speed does not depend on the pixel values. Two distinct samples are
+made once and served in turn, so "waiting" (the time a step spends in ``next(loader)`` and the
+copy to the device; on CUDA the GPU is idle then, as each step ends by reading its losses back)
+is the cost of *feeding* those shapes: collating in the workers, passing the batch to the
+trainer's process, pinning it and copying it. It is a floor of the real data set's, whose
+workers also rasterize the proxy, interpolate its motion features and decode the images.
+
+``--motion`` picks how the samples carry the motion features, as the trainers do: ``pixels``
+(the (3, 95, H, W) map the loader makes: the trainers on the CPU) or ``vertices`` (per-vertex
+features of a :data:`VERTICES`-vertex proxy with each pixel's corner ids and weights,
+interpolated on the device inside the timed step: the trainers on CUDA,
+:func:`training.loader.for_device`); ``auto`` is the trainers' choice for ``--device``.
 
 Rows name the device and the torch version; peak memory is CUDA's ``max_memory_allocated`` on
 a GPU and the process's peak resident size on the CPU.
@@ -22,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import itertools
 import json
 import os
 import resource
@@ -42,6 +52,10 @@ HELP = "renderer training: steps/s, peak memory and the share of each step waiti
 WARMUP = 2
 #: Smallest image the temporal discriminator takes (three stride-2 4x4 convs, two more 4x4).
 MIN_SIZE = 32
+#: Proxy vertices of the synthetic samples' per-vertex motion features (about the synthetic
+#: skirt's, ``dng bench render``).
+VERTICES = 2000
+MOTION_FORMS = ("auto", "pixels", "vertices")
 
 
 class ShapeDataset:
@@ -50,26 +64,52 @@ class ShapeDataset:
     Parameters
     ----------
     length : samples; size : image side (pixels); motion_channels : C of the motion features
+    vertices : None for the (3, C, H, W) motion map, or the proxy's vertex count for the
+        per-vertex form (:data:`training.renderer.data.VERTEX_MOTION_KEYS`)
+    distinct : samples made (served in turn)
     """
 
-    def __init__(self, length: int, size: int, motion_channels: int = 95, seed: int = 0):
+    def __init__(
+        self,
+        length: int,
+        size: int,
+        motion_channels: int = 95,
+        seed: int = 0,
+        distinct: int = 2,
+        vertices: int | None = None,
+    ):
+        import torch
+
         from training.renderer.data import SAMPLE_KEYS
 
-        self.length, self.size, self.seed = length, size, seed
-        self.channels = {k: motion_channels if c is None else c for k, c in SAMPLE_KEYS.items()}
+        self.length, self.size = length, size
+        channels = {k: motion_channels if c is None else c for k, c in SAMPLE_KEYS.items()}
+        if vertices is not None:
+            del channels["motion"]
+        self.samples = []
+        for i in range(min(distinct, length)):
+            g = torch.Generator().manual_seed(seed + i)
+            sample = {}
+            for k, c in channels.items():
+                t = torch.rand(3, c, size, size, generator=g)
+                sample[k] = (t > 0.3).float() if k.endswith("mask") else t
+            if vertices is not None:
+                w = torch.rand(3, 3, size, size, generator=g)
+                sample["motion_corners"] = torch.randint(
+                    vertices, (3, 3, size, size), generator=g, dtype=torch.int32
+                )
+                sample["motion_weights"] = w / w.sum(1, keepdim=True) * sample["proxy_mask"]
+                sample["vertex_motion"] = torch.rand(3, vertices, motion_channels, generator=g)
+            self.samples.append(sample)
 
     def __len__(self) -> int:
         return self.length
 
     def __getitem__(self, i: int) -> dict:
-        import torch
-
-        g = torch.Generator().manual_seed(self.seed + i)
-        out = {}
-        for k, c in self.channels.items():
-            t = torch.rand(3, c, self.size, self.size, generator=g)
-            out[k] = (t > 0.3).float() if k.endswith("mask") else t
-        return out
+        """Sample ``i``: one of the distinct samples (made once, served in turn)."""
+        if not 0 <= i < self.length:
+            raise IndexError(f"sample {i} of {self.length}")
+        return self.samples[i % len(self.samples)]
 
 
 def measure_one(
@@ -81,6 +121,7 @@ def measure_one(
     workers: int,
     out_dir,
     precision: str = "auto",
+    motion: str = "auto",
 ) -> dict:
     """Train ``steps`` timed steps (after :data:`WARMUP`); one row."""
 
@@ -94,7 +135,10 @@ def measure_one(
     dev = torch.device(device)
     config = replace(PRESETS[preset], batch_size=batch, precision=precision)
     n = batch * (steps + WARMUP)
-    data = ShapeDataset(n, size, config.motion_channels)
+    if motion == "auto":
+        motion = "vertices" if cuda else "pixels"
+    vertices = VERTICES if motion == "vertices" else None
+    data = ShapeDataset(n, size, config.motion_channels, vertices=vertices)
     trainer = renderer_trainer(data, config, out_dir, device=dev, steps=steps + WARMUP)
     feed = batches(
         data, trainer.order, steps + WARMUP, batch,
@@ -131,8 +175,9 @@ def measure_one(
         "device": str(device),
         "device_name": device_name(device),
         "torch": torch.__version__,
-        "data": "synthetic (shapes of the data set's samples)",
+        "data": "synthetic (two samples of the data set's shapes, served in turn)",
         "precision": trainer.precision,
+        "motion": motion,
         "perceptual": trainer.perceptual is not None,
         "steps": steps,
         "ms_per_step": 1e3 * step_s,
@@ -146,7 +191,7 @@ def measure_one(
 
 
 HEADER = (
-    f"{'preset':>7} {'size':>5} {'batch':>5} {'wkr':>3} {'prec':>4} {'ms/step':>8} "
+    f"{'preset':>7} {'size':>5} {'batch':>5} {'wkr':>3} {'prec':>4} {'motion':>8} {'ms/step':>8} "
     f"{'steps/s':>7} {'img/s':>6} {'wait':>6} {'peak MiB':>9} {'load':>5}  device / torch"
 )
 
@@ -154,7 +199,7 @@ HEADER = (
 def format_row(r: dict) -> str:
     return (
         f"{r['preset']:>7} {r['size']:>5} {r['batch']:>5} {r['workers']:>3} "
-        f"{r['precision']:>4} {r['ms_per_step']:>8.1f} {r['steps_per_s']:>7.2f} "
+        f"{r['precision']:>4} {r['motion']:>8} {r['ms_per_step']:>8.1f} {r['steps_per_s']:>7.2f} "
         f"{r['images_per_s']:>6.2f} {r['wait_share']:>6.1%} {r['peak_memory_mib']:>9.0f} "
         f"{r['load_average']:>5.2f}  {r['device_name']} / torch {r['torch']}"
     )
@@ -180,6 +225,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--precision", nargs="+", default=["auto"], choices=PRECISIONS,
         help="training arithmetic (RendererConfig.precision; auto: bf16 on CUDA, fp32 on CPU)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--motion", nargs="+", default=["auto"], choices=MOTION_FORMS,
+        help="how samples carry the motion features: pixels (the loader's map), vertices "
+        "(interpolated on the device); auto: vertices on CUDA, pixels on CPU",
     )  # fmt: skip
 
 
@@ -211,13 +261,12 @@ def run(args: argparse.Namespace) -> int:
     say(HEADER)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for precision in args.precision:
-            for b in batches:
-                row = measure_one(
-                    preset, size, b, args.device, steps, args.workers, Path(tmp), precision
-                )
-                rows.append(row)
-                say(format_row(row))
+        for motion, precision, b in itertools.product(args.motion, args.precision, batches):
+            row = measure_one(
+                preset, size, b, args.device, steps, args.workers, Path(tmp), precision, motion
+            )
+            rows.append(row)
+            say(format_row(row))
     table = {"bench": "train", "device": args.device, "torch": torch.__version__, "rows": rows}
     out = Path(args.out)
     write_json(out / "train.json", table)

@@ -37,7 +37,7 @@ from training.adversarial import AdversarialTrainer, RunFiles, dataset_fingerpri
 from training.baselines.common import BaselineConfig, BaselineModel, RendererAdapter
 from training.baselines.dnr import DNR_GAN_PRESETS, DNR_PRESETS, DeferredNeuralRenderer, DNRConfig
 from training.baselines.pix2pix import PIX2PIX_PRESETS, Pix2Pix, Pix2PixConfig
-from training.loader import batches
+from training.loader import batches, for_device
 from training.loop import run_steps
 
 KINDS = ("pix2pix", "dnr", "dnr-gan")
@@ -209,7 +209,7 @@ def feed(tr: AdversarialTrainer, dataset, steps: int, workers: int = 0):
     """The next ``steps`` checked batches of a baseline run and the sample order after each
     (:func:`training.loader.batches`)."""
     for item, order in batches(
-        dataset, tr.order, steps, tr.config.batch_size, collate_samples,
+        for_device(dataset, tr.device), tr.order, steps, tr.config.batch_size, collate_samples,
         workers=workers, pin_memory=tr.device.type == "cuda",
     ):  # fmt: skip
         yield tr.net.check(item, ("target",)), order

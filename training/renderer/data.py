@@ -16,6 +16,17 @@ target_mask    (3, 1, H, W)       garment coverage in the ground truth
 
 A DataLoader batch adds a leading B. :meth:`RenderBatch.from_dict` checks one and names the
 generator's inputs: frame t is index 1, t-1 is index 0, t+1 is index 2.
+
+Instead of ``motion``, a sample may carry its motion features per vertex, for the trainer's
+device to interpolate (:func:`motion_maps`; what a data set feeding a GPU does: the per-pixel
+map is 95 floats a pixel, this 6, so batches are several times smaller to make, pass between
+processes, pin and copy):
+
+=================  =================  ================================================
+motion_corners     (3, 3, H, W)       int32 vertex ids of the covering face's corners
+motion_weights     (3, 3, H, W)       their barycentric weights, 0 off the proxy
+vertex_motion      (3, V, 95)         motion features per proxy vertex
+=================  =================  ================================================
 """
 
 from __future__ import annotations
@@ -48,19 +59,52 @@ SAMPLE_KEYS = {
     "background": 3,
     "target_mask": 1,
 }
+#: The per-vertex form of ``motion`` (see the module docstring).
+VERTEX_MOTION_KEYS = ("motion_corners", "motion_weights", "vertex_motion")
 PREV, CUR, NEXT = 0, 1, 2
+
+
+def motion_maps(corners: torch.Tensor, weights: torch.Tensor, vertex_motion: torch.Tensor):
+    """Per-vertex motion features interpolated at each pixel, on their device.
+
+    corners : (B, 3, H, W) int vertex ids of the covering face's corners
+    weights : (B, 3, H, W) float barycentric weights, 0 off the proxy
+    vertex_motion : (B, V, C) float features per vertex
+
+    Returns (B, C, H, W) in ``vertex_motion``'s dtype: ``sum_k weights_k * features[corner_k]``
+    (:func:`core.features.interpolate` of per-vertex attributes, with the rasterization
+    already gathered), built one corner at a time so no (B, 3, C, H, W) gather is held.
+    """
+    b, _, h, w = corners.shape
+    features = vertex_motion.transpose(1, 2)  # (B, C, V)
+    c = features.shape[1]
+    out = None
+    for k in range(3):
+        idx = corners[:, k].reshape(b, 1, h * w).long().expand(b, c, h * w)
+        term = torch.gather(features, 2, idx) * weights[:, k].reshape(b, 1, h * w)
+        out = term if out is None else out + term
+    return out.reshape(b, c, h, w)
 
 
 @dataclass(frozen=True)
 class RenderBatch:
-    """A checked batch. Every field is (B, 3, C, H, W) float32 (frames t-1, t, t+1)."""
+    """A checked batch. Every image field is (B, 3, C, H, W) float32 (frames t-1, t, t+1).
+
+    ``motion`` is None when the batch carries its motion features per vertex: then
+    ``motion_corners`` (B, 3, 3, H, W) int32, ``motion_weights`` (B, 3, 3, H, W) float32 and
+    ``vertex_motion`` (B, 3, V, C) float32, interpolated by :meth:`motion_frame` where the
+    batch is (after :meth:`to`, on the trainer's device).
+    """
 
     uv: torch.Tensor
-    motion: torch.Tensor
+    motion: torch.Tensor | None
     proxy_mask: torch.Tensor
     target: torch.Tensor
     background: torch.Tensor
     target_mask: torch.Tensor
+    motion_corners: torch.Tensor | None = None
+    motion_weights: torch.Tensor | None = None
+    vertex_motion: torch.Tensor | None = None
 
     @classmethod
     def from_dict(
@@ -70,12 +114,14 @@ class RenderBatch:
         ``name`` (the data set's file) on a missing key or a wrong shape."""
         if not isinstance(sample, dict):
             raise InputError(f"a renderer sample must be a dict, got {type(sample).__name__}", name)
-        missing = [k for k in SAMPLE_KEYS if k not in sample]
+        per_vertex = "motion" not in sample and all(k in sample for k in VERTEX_MOTION_KEYS)
+        keys = {k: c for k, c in SAMPLE_KEYS.items() if not (per_vertex and k == "motion")}
+        missing = [k for k in keys if k not in sample]
         if missing:
             raise InputError(f"renderer sample is missing {missing}", name)
         out = {}
         ref = None
-        for k, c in SAMPLE_KEYS.items():
+        for k, c in keys.items():
             t = torch.as_tensor(sample[k])
             if t.dim() == 4:
                 t = t.unsqueeze(0)
@@ -94,16 +140,28 @@ class RenderBatch:
                     name,
                 )
             out[k] = t.float()
+        if per_vertex:
+            out.update(_check_vertex_motion(sample, motion_channels, ref, name), motion=None)
         return cls(**out)
 
+    def _map(self, fn) -> RenderBatch:
+        return RenderBatch(**{k: None if v is None else fn(v) for k, v in vars(self).items()})
+
     def to(self, device, non_blocking: bool = False) -> RenderBatch:
-        return RenderBatch(
-            **{k: getattr(self, k).to(device, non_blocking=non_blocking) for k in SAMPLE_KEYS}
-        )
+        return self._map(lambda t: t.to(device, non_blocking=non_blocking))
 
     def pin_memory(self) -> RenderBatch:
         """Page-locked copies (what a DataLoader with ``pin_memory=True`` calls)."""
-        return RenderBatch(**{k: getattr(self, k).pin_memory() for k in SAMPLE_KEYS})
+        return self._map(lambda t: t.pin_memory())
+
+    def motion_frame(self, i: int) -> torch.Tensor:
+        """Motion features of frame ``i`` (PREV, CUR or NEXT): (B, C, H, W), interpolated here
+        from the per-vertex form when the batch carries that."""
+        if self.motion is not None:
+            return self.motion[:, i]
+        return motion_maps(
+            self.motion_corners[:, i], self.motion_weights[:, i], self.vertex_motion[:, i]
+        )
 
     @property
     def size(self) -> tuple[int, int]:
@@ -114,13 +172,39 @@ class RenderBatch:
         """Keyword arguments of :meth:`RenderNet.forward` for frame t."""
         return {
             "uv": self.uv[:, CUR],
-            "motion": self.motion[:, CUR] if use_motion else None,
+            "motion": self.motion_frame(CUR) if use_motion else None,
             "mask": self.proxy_mask[:, CUR],
             "uv_prev": self.uv[:, PREV],
-            "motion_prev": self.motion[:, PREV] if use_motion else None,
+            "motion_prev": self.motion_frame(PREV) if use_motion else None,
             "mask_prev": self.proxy_mask[:, PREV],
             "background": self.background[:, CUR],
         }
+
+
+def _check_vertex_motion(
+    sample: dict, motion_channels: int, ref: tuple, name: str | None
+) -> dict[str, torch.Tensor]:
+    """The per-vertex motion keys of a sample or batch, checked against the images' (B, H, W)
+    ``ref``: (B, 3, 3, H, W) corners and weights, (B, 3, V, C) features."""
+    out = {}
+    for k in VERTEX_MOTION_KEYS:
+        t = torch.as_tensor(sample[k])
+        if t.dim() == (3 if k == "vertex_motion" else 4):
+            t = t.unsqueeze(0)
+        if k == "vertex_motion":
+            ok = t.dim() == 4 and t.shape[:2] == (ref[0], 3) and t.shape[3] == motion_channels
+            want = f"(B, 3, V, {motion_channels})"
+        else:
+            ok = t.dim() == 5 and t.shape[:3] == (ref[0], 3, 3) and tuple(t.shape[3:]) == ref[1:]
+            want = f"(B, 3, 3, {ref[1]}, {ref[2]})"
+        if not ok:
+            raise InputError(f"sample[{k!r}] must be {want}, got {tuple(sample[k].shape)}", name)
+        out[k] = t.int() if k == "motion_corners" else t.float()
+    v = out["vertex_motion"].shape[2]
+    corners = out["motion_corners"]
+    if corners.numel() and (int(corners.min()) < 0 or int(corners.max()) >= v):
+        raise InputError(f"sample['motion_corners'] holds ids outside the {v} vertices", name)
+    return out
 
 
 # --------------------------------------------------------------------------------------------

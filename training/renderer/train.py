@@ -36,7 +36,7 @@ from core.errors import InputError
 from core.fileio import atomic_path
 from core.shading import contact_sheet, write_png
 from training.adversarial import AdversarialTrainer, RunFiles, dataset_fingerprint, world_size
-from training.loader import batches
+from training.loader import batches, for_device
 from training.loop import run_steps
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
@@ -332,7 +332,7 @@ def train_renderer(
         )
         with bar:
             feed = batches(
-                dataset, tr.order, n_steps - tr.step, cfg.batch_size,
+                for_device(dataset, device), tr.order, n_steps - tr.step, cfg.batch_size,
                 functools.partial(collate_samples, motion_channels=cfg.motion_channels),
                 workers=workers, pin_memory=device.type == "cuda", world=tr.world, rank=tr.rank,
             )  # fmt: skip
