@@ -27,6 +27,7 @@ exact up to 8-bit rounding, with antialiased edges kept, no colour keying.
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import shutil
@@ -104,6 +105,13 @@ class BackdropDataset:
 
     def __len__(self) -> int:
         return len(self.base)
+
+    def with_motion_per_vertex(self) -> BackdropDataset:
+        """The same samples over the base's per-vertex motion features (what a trainer on a
+        GPU loads: ``training.loader.for_device``)."""
+        other = copy.copy(self)
+        other.base = self.base.with_motion_per_vertex()
+        return other
 
     def backdrop(self, i: int, width: int, height: int) -> np.ndarray:
         k = i % len(self.images)

@@ -177,6 +177,23 @@ def test_finetune_background_trains_only_allowed_parameters(smoke_project, tmp_p
     assert abs(int(corner[2]) - 90) < 30  # the backdrop's blue channel, not the studio grey
 
 
+def test_backdrop_samples_per_vertex_for_a_gpu(smoke_project):
+    """Fine-tuning on a GPU loads the backdrop samples with per-vertex motion features, the
+    recomposited images unchanged."""
+    import torch
+
+    from pipeline.finetune import BackdropDataset
+    from training.dataset import GarmentDataset
+    from training.loader import for_device
+
+    image = np.full((20, 30, 3), 200, np.uint8)
+    data = BackdropDataset(GarmentDataset(smoke_project), [image])
+    dense, compact = data[0], for_device(data, "cuda")[0]
+    assert "motion" in dense and "vertex_motion" in compact and "motion" not in compact
+    for k in ("target", "background", "target_mask", "uv"):
+        assert torch.equal(dense[k], compact[k]), k
+
+
 def test_finetune_bad_inputs(smoke_project, tmp_path, dng):
     bad = tmp_path / "broken.png"
     bad.write_text("not an image")
