@@ -388,6 +388,9 @@ PRESETS: dict[str, PipelineConfig] = {
         # window 50 26.7 / 66; residual_dropout 0.05 26.8 / 67; every joint's velocities
         # (--every-joint-dynamic) 28.9 / 69, 28.2 / 67 at skin_fade 0: the rest kept. The
         # paper's model, beside ours, takes tilt_follow 1 (its docstring: chosen the same way).
+        # With the 35-clip library (the README's /tmp/q48, seeds 0 to 2: 23.4 / 58):
+        # residual_widths [256, 256] 23.4 / 59, residual_steps 12000 23.2 / 58 (within seed
+        # noise, for twice the training): neither taken.
         joint2coarse_overrides={
             "model": "ours",
             "residual_widths": [128, 128],
