@@ -42,8 +42,8 @@ from training.joint2coarse import (
     train_joint2coarse,
 )
 from training.joint2coarse.augment import mirror_map
-from training.joint2coarse.body_model import BodyResidualModel, body_rig, motion_features
-from training.joint2coarse.config import MODELS
+from training.joint2coarse.body_model import BodyResidualModel, body_rig, feature_count
+from training.joint2coarse.config import FEATURE_FRAMES, MODELS, RESIDUAL_FRAMES
 from training.joint2coarse.descriptor import joint2coarse_inputs
 from training.joint2coarse.model import Joint2CoarseNet
 from training.joint2coarse.synthetic import rest_skirt, skirt_faces, synthetic_clip, synthetic_walk
@@ -120,6 +120,14 @@ def main() -> None:
         help="ours: residual networks folded into one (residual_members)",
     )  # fmt: skip
     parser.add_argument(
+        "--feature-frame", default="heading", choices=FEATURE_FRAMES,
+        help="ours: the frame of the residual's motion features (feature_frame)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--residual-frame", default="hips", choices=RESIDUAL_FRAMES,
+        help="ours: the frame the residual is predicted in (residual_frame)",
+    )  # fmt: skip
+    parser.add_argument(
         "--train-steps", type=int, default=20,
         help="also time this many training steps per stage (0: skip)",
     )  # fmt: skip
@@ -132,7 +140,12 @@ def main() -> None:
         base = replace(base, encoder_widths=tuple(args.encoder_widths))
     if args.residual_widths is not None:
         base = replace(base, residual_widths=tuple(args.residual_widths))
-    base = replace(base, residual_members=args.members)
+    base = replace(
+        base,
+        residual_members=args.members,
+        feature_frame=args.feature_frame,
+        residual_frame=args.residual_frame,
+    )
     joints, root_rot = joint2coarse_inputs(synthetic_walk(args.frames, seed=0))
     print(f"{_load()} before; torch {torch.__version__}, {args.frames} frames per measurement")
     verdict = None
@@ -144,6 +157,8 @@ def main() -> None:
             f"{base.residual_widths or 'none (linear)'}"
             + (f" x {base.residual_members} members" if base.residual_widths else "")
             + (", symmetric (mirror=true)" if args.mirror else "")
+            + f", features in the {base.feature_frame} frame, residual in the "
+            f"{base.residual_frame} frame"
         )
         for threads in args.threads:
             torch.set_num_threads(threads)
@@ -213,7 +228,7 @@ def _ours(base: Joint2CoarseConfig, n_vertices: int, mirror: bool) -> BodyResidu
     config = replace(base, model="ours")
     weights, rest_joints, rest_vertices = body_rig(BodyShape(), skirt, config.skin_fade)
     d = config.num_samples * 57
-    k = motion_features(np.zeros((1, d)), config.num_samples).shape[1]
+    k = feature_count(config, d)
     rng = np.random.default_rng(0)
     arrays = {
         "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,

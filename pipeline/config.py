@@ -390,7 +390,11 @@ PRESETS: dict[str, PipelineConfig] = {
         # paper's model, beside ours, takes tilt_follow 1 (its docstring: chosen the same way).
         # With the 35-clip library (the README's /tmp/q48, seeds 0 to 2: 23.4 / 58):
         # residual_widths [256, 256] 23.4 / 59, residual_steps 12000 23.2 / 58 (within seed
-        # noise, for twice the training): neither taken.
+        # noise, for twice the training): neither taken. The motion features in the current
+        # hips' frame (feature_frame, seeds 0 to 2, --set feature_frame=F): hips 22.1 / 57,
+        # hips+heading 21.9 / 56, against heading 23.4 / 58, lower at every seed and on every
+        # validation motion (CMU 01_03 24.3 / 72 to 21.9 / 66): hips+heading taken. The residual
+        # in each vertex's skinned frame (residual_frame=skinned) 23.9 / 60: not taken.
         joint2coarse_overrides={
             "model": "ours",
             "residual_widths": [128, 128],
@@ -399,6 +403,7 @@ PRESETS: dict[str, PipelineConfig] = {
             "mirror": True,
             "skin_fade": 0.0,
             "tilt_follow": 1.0,
+            "feature_frame": "hips+heading",
         },
         joint2coarse_compare=("paper", "ours"),
     ),

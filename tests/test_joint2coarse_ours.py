@@ -212,3 +212,87 @@ def test_residual_input_noise_and_weight_decay_change_only_what_they_say():
     for bad in ({"residual_input_noise": -0.1}, {"residual_weight_decay": float("nan")}):
         with pytest.raises(InputError, match=next(iter(bad))):
             replace(cfg, **bad)
+
+
+def _rot(axis: int, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    i, j = [k for k in range(3) if k != axis]
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+def test_hips_frame_features_see_a_tilted_body_as_the_same_motion(clips):
+    """feature_frame=hips: the whole motion turned about the root (a pelvis tilted, say) gives
+    the same features but gravity's direction; ``hips+heading`` adds the heading-frame pose;
+    the count matches :func:`feature_count`."""
+    from training.joint2coarse.body_model import feature_count
+
+    rest = body_rig(BodyShape(), rest_skirt(), fade=1.0)[1]
+    desc = motion_descriptors(clips[0].joints, clips[0].root_rotations, OURS.window, OURS.stride)
+    desc = desc[0][100:110].astype(np.float64)
+    k = OURS.num_samples
+    tilt = _rot(0, 25.0) @ _rot(2, -10.0)
+    tilted = (desc.reshape(len(desc), k, 19, 3) @ tilt.T).reshape(len(desc), -1)
+    hips = bone_transforms(desc[:, :57].reshape(-1, 19, 3), rest)[:, 0, :, :3]
+    hips_t = bone_transforms(tilted[:, :57].reshape(-1, 19, 3), rest)[:, 0, :, :3]
+    assert_close(hips_t, tilt @ hips, atol=1e-9, what="the hips turn with the body")
+    a = motion_features(desc, k, "hips", hips)
+    b = motion_features(tilted, k, "hips", hips_t)
+    up = slice(57, 60)
+    assert_close(np.delete(a, up, 1), np.delete(b, up, 1), atol=1e-9, what="tilt-free features")
+    assert_close(a[:, up], hips[:, 1, :], what="gravity's direction in the hips' frame")
+    assert not np.allclose(a[:, up], b[:, up])
+    head = motion_features(desc, k)
+    assert not np.allclose(head, motion_features(tilted, k)[:, : head.shape[1]])
+    both = motion_features(desc, k, "hips+heading", hips)
+    assert_close(both[:, 60:117], desc[:, :57], what="heading-frame pose")
+    for frame, f in (("heading", head), ("hips", a), ("hips+heading", both)):
+        assert feature_count(replace(OURS, feature_frame=frame), desc.shape[1]) == f.shape[1]
+    with pytest.raises(InputError, match="feature_frame"):
+        replace(OURS, feature_frame="pelvis")
+    with pytest.raises(InputError, match="residual_frame"):
+        replace(OURS, residual_frame="world")
+
+
+def test_vertex_frames_are_rotations_that_follow_their_bones(rig):
+    from training.joint2coarse.body_model import skin_matrix, skin_weights, vertex_frames
+
+    weights, rest_joints, rest_vertices = rig
+    used, skin = skin_matrix(weights, rest_vertices)
+    assert_close(skin_weights(skin), weights[:, used], what="weights inside the skin matrix")
+    pose = rest_joints[None, 1:].astype(np.float64)
+    f = vertex_frames(bone_transforms(pose, rest_joints), used, skin_weights(skin))
+    assert_close(f, np.broadcast_to(np.eye(3), f.shape), atol=1e-6, what="rest: identity")
+    tilt = _rot(0, 30.0)
+    f = vertex_frames(bone_transforms(pose @ tilt.T, rest_joints), used, skin_weights(skin))
+    assert_close(f, np.broadcast_to(tilt, f.shape), atol=1e-5, what="rigid: the body's turn")
+    # a leg lifted: the frames stay rotations (orthonormal, det 1)
+    from training.joint2coarse.descriptor import JOINT2COARSE_JOINTS
+
+    ix = {n: i - 1 for i, n in enumerate(JOINT2COARSE_JOINTS)}  # pose has no root row
+    hip, leg = ix["LeftUpLeg"], [ix["LeftLeg"], ix["LeftFoot"]]
+    lifted = pose.copy()
+    lifted[0, leg] = (pose[0, leg] - pose[0, hip]) @ _rot(0, -60.0).T + pose[0, hip]
+    f = vertex_frames(bone_transforms(lifted, rest_joints), used, skin_weights(skin))[0]
+    assert_close(f @ np.swapaxes(f, 1, 2), np.broadcast_to(np.eye(3), f.shape), atol=1e-9)
+    assert np.allclose(np.linalg.det(f), 1.0)
+
+
+@pytest.mark.parametrize(
+    "changes", [{"feature_frame": "hips+heading"}, {"residual_frame": "skinned"}]
+)
+def test_other_frames_train_save_load_and_run_in_torch_as_in_numpy(changes, clips, rig, tmp_path):
+    cfg = replace(OURS, residual_steps=800, **changes)
+    res = train_joint2coarse(clips, tmp_path, cfg, rig=rig)
+    assert res.stage_errors["residual"].mean_mm < 0.3 * res.baseline.mean_mm
+    net = load_model(res.model_path)
+    assert net.config == cfg
+    clip = clips[1]
+    pred = predict_proxy(net, clip.joints, clip.root_rotations)
+    assert_close(pred, predict_proxy(res.net, clip.joints, clip.root_rotations), what="reload")
+    desc = motion_descriptors(clip.joints, clip.root_rotations, cfg.window, cfg.stride)[0][:40]
+    with torch.no_grad():
+        out = net.to_torch()(torch.from_numpy(desc)).numpy()
+    assert_close(out, net.predict(desc), atol=1e-5, what="torch vs numpy")

@@ -217,7 +217,7 @@ def bone_transforms(pose, rest_joints):
     return xp.concatenate([rot, move[..., None]], axis=-1)
 
 
-def motion_features(desc, num_samples: int):
+def motion_features(desc, num_samples: int, frame: str = "heading", hips=None):
     """The residual's inputs from descriptors (see the module docstring).
 
     Parameters
@@ -225,6 +225,13 @@ def motion_features(desc, num_samples: int):
     desc : (B, K * 57) float numpy array or torch tensor,
         :func:`~training.joint2coarse.descriptor.motion_descriptors`
     num_samples : int, K
+    frame : str
+        ``heading``: every feature in the heading frame; ``hips``: the whole window turned
+        into the current frame's hips' frame (so a tilted pelvis is the familiar pose, tilted),
+        and gravity's direction there; ``hips+heading``: those and the current pose in the
+        heading frame too (:attr:`~training.joint2coarse.config.Joint2CoarseConfig.feature_frame`).
+    hips : (B, 3, 3) float, the hips' rotations (rest -> heading frame, the first of
+        :func:`bone_transforms`) of the current frame; needed for ``hips`` frames.
 
     Returns
     -------
@@ -232,7 +239,15 @@ def motion_features(desc, num_samples: int):
     """
     xp = _xp(desc)
     x = _as(desc, "float64").reshape(len(desc), num_samples, 19, 3)
-    parts = [x[:, 0].reshape(len(x), -1)]
+    if frame == "heading":
+        parts = [x[:, 0].reshape(len(x), -1)]
+    else:
+        heading = x[:, 0].reshape(len(x), -1)
+        r = _as(hips, "float64")
+        x = xp.einsum("bkjc,bcd->bkjd", x, r)  # row vectors: p R, the hips' frame's R^T p
+        parts = [x[:, 0].reshape(len(x), -1), r[:, 1, :]]  # the pose; up, in the hips' frame
+        if frame == "hips+heading":
+            parts.append(heading)
     vel = [k for k in VELOCITY_LAGS if k < num_samples]
     acc = [k for k in ACCELERATION_LAGS if 2 * k < num_samples]
     d = x[:, :, _DYNAMIC]
@@ -273,6 +288,35 @@ def skin_matrix(weights: np.ndarray, rest_vertices: np.ndarray) -> tuple[np.ndar
     return used, skin.astype(np.float32)
 
 
+def skin_weights(skin):
+    """The used joints' weights (V, S) inside :func:`skin_matrix`'s ``skin`` (V, 4 S): the
+    column each joint's block multiplies with the 1. numpy or torch."""
+    return skin.reshape(len(skin), -1, 4)[..., 3]
+
+
+def vertex_frames(transforms, used, weights):
+    """Each vertex's own frame: its bones' rotations blended by its skinning weights,
+    orthonormalised (Gram-Schmidt on the columns, the first kept), for a residual that is a
+    displacement of the rest proxy before skinning (``residual_frame="skinned"``).
+
+    Parameters
+    ----------
+    transforms : (B, 20, 3, 4) float64 :func:`bone_transforms`
+    used : (S,) int, weights : (V, S) float
+        :func:`skin_matrix`'s used joints and :func:`skin_weights`. numpy or torch.
+
+    Returns
+    -------
+    (B, V, 3, 3) float64 rotations (rest frame -> heading frame), of the inputs' kind.
+    """
+    xp = _xp(transforms)
+    m = xp.einsum("vs,bsij->bvij", _as(weights, "float64"), transforms[:, used, :, :3])
+    e0 = _unit(m[..., 0])
+    e1 = _unit(m[..., 1] - (m[..., 1] * e0).sum(-1)[..., None] * e0)
+    e2 = torch.linalg.cross(e0, e1) if xp is torch else np.cross(e0, e1)
+    return xp.stack([e0, e1, e2], -1)
+
+
 def skinned_base(transforms, used, skin):
     """The body-driven base: (B, 20, 3, 4) float64 :func:`bone_transforms`, ``used`` and
     ``skin`` of :func:`skin_matrix` -> (B, V, 3) float32 skinned rest proxy, heading frame:
@@ -282,10 +326,19 @@ def skinned_base(transforms, used, skin):
     return _xp(m).matmul(skin, stacked)
 
 
-def residual_inputs(desc, feat_mean, feat_std, num_samples: int, clamp_z: float):
-    """(B, D) descriptors -> (B, F + 1) float64 normalised, clamped :func:`motion_features`
-    and a 1 for the bias (feat_mean, feat_std (F,)). numpy or torch."""
-    z = (motion_features(desc, num_samples) - feat_mean) / feat_std
+def feature_count(config: Joint2CoarseConfig, descriptor_dim: int) -> int:
+    """F, the number of :func:`motion_features` of config's ``feature_frame``."""
+    z = np.zeros((1, descriptor_dim))
+    return motion_features(z, config.num_samples, config.feature_frame, np.eye(3)[None]).shape[1]
+
+
+def residual_inputs(desc, transforms, feat_mean, feat_std, config: Joint2CoarseConfig):
+    """(B, D) descriptors and their (B, 20, 3, 4) :func:`bone_transforms` -> (B, F + 1) float64
+    normalised, clamped :func:`motion_features` (config's ``feature_frame``, ``clamp_z``) and
+    a 1 for the bias (feat_mean, feat_std (F,)). numpy or torch."""
+    feats = motion_features(desc, config.num_samples, config.feature_frame, transforms[:, 0, :, :3])
+    clamp_z = config.clamp_z
+    z = (feats - feat_mean) / feat_std
     return _xp(z).concatenate(
         [_xp(z).clip(z, -clamp_z, clamp_z), _new(z, "ones", (len(z), 1))], axis=1
     )
@@ -312,7 +365,7 @@ def residual_hidden(x, layers: list):
     return x
 
 
-def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
+def predict_heading_frame(desc, params: dict, config: Joint2CoarseConfig):
     """Our prediction: the base plus the residual, turned from the hips' frame into the heading
     frame; for a model trained with mirrored clips (``mirror_corners`` in params), the mean of
     that and the reflected prediction for the mirrored motion (so the model is left-right
@@ -320,7 +373,7 @@ def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
 
     Parameters
     ----------
-    desc : (B, D) float descriptors (D = num_samples * 57)
+    desc : (B, D) float descriptors (D = config.num_samples * 57)
     params : ``rest_joints`` (20, 3), ``feat_mean``, ``feat_std`` (F,), the hidden layers
         ``hidden0``, ``hidden1``, ... (F + 1, H0), (H0 + 1, H1), ... (none for the linear
         residual) and ``coef`` (H + 1, V * 3), or (H + 1, K) with ``basis`` (K, V * 3), float32
@@ -335,27 +388,31 @@ def predict_heading_frame(desc, params: dict, num_samples: int, clamp_z: float):
     (B, V, 3) float32 heading-frame vertices.
     """
     if "mirror_corners" not in params:
-        return _predict_once(desc, params, num_samples, clamp_z)
-    both = _xp(desc).concatenate([desc, mirror_descriptors(desc, num_samples)])  # one pass
-    out = _predict_once(both, params, num_samples, clamp_z)
+        return _predict_once(desc, params, config)
+    both = _xp(desc).concatenate([desc, mirror_descriptors(desc, config.num_samples)])  # one pass
+    out = _predict_once(both, params, config)
     back = reflect_positions(
         out[len(desc) :], params["mirror_corners"], params["mirror_barycentric"]
     )
     return 0.5 * (out[: len(desc)] + back)
 
 
-def _predict_once(desc, params: dict, num_samples: int, clamp_z: float):
+def _predict_once(desc, params: dict, config: Joint2CoarseConfig):
     """:func:`predict_heading_frame` of one motion (no mirror)."""
     xp, p = _xp(desc), params
     desc = _as(desc, "float64")
     m = bone_transforms(desc[:, :57].reshape(-1, 19, 3), p["rest_joints"])
-    x = _as(residual_inputs(desc, p["feat_mean"], p["feat_std"], num_samples, clamp_z), "float32")
+    x = _as(residual_inputs(desc, m, p["feat_mean"], p["feat_std"], config), "float32")
     x = residual_hidden(x, [p[n] for n in hidden_names(p)]) @ p["coef"]
     if "basis" in p:
         x = x @ p["basis"]
     residual = x.reshape(len(desc), -1, 3)
+    base = skinned_base(m, p["used"], p["skin"])
+    if config.residual_frame == "skinned":  # each vertex's own frame
+        frames = _as(vertex_frames(m, p["used"], skin_weights(p["skin"])), "float32")
+        return base + xp.einsum("bvij,bvj->bvi", frames, residual)
     hips_t = _as(xp.swapaxes(m[:, 0, :, :3], 1, 2), "float32")  # row vectors: r R^T
-    return skinned_base(m, p["used"], p["skin"]) + xp.matmul(residual, hips_t)
+    return base + xp.matmul(residual, hips_t)
 
 
 class BodyResidualModel:
@@ -414,10 +471,12 @@ class BodyResidualModel:
         """(B, 20, 3, 4) :meth:`transforms` -> (B, V, 3) float32 :func:`skinned_base`."""
         return skinned_base(transforms, *self.skin())
 
-    def features(self, desc: np.ndarray) -> np.ndarray:
-        """(B, D) -> (B, F + 1) :func:`residual_inputs`."""
-        a, c = self.arrays, self.config
-        return residual_inputs(desc, a["feat_mean"], a["feat_std"], c.num_samples, c.clamp_z)
+    def features(self, desc: np.ndarray, transforms: np.ndarray | None = None) -> np.ndarray:
+        """(B, D), their :meth:`transforms` if already computed -> (B, F + 1)
+        :func:`residual_inputs`."""
+        m = self.transforms(desc) if transforms is None else transforms
+        a = self.arrays
+        return residual_inputs(desc, m, a["feat_mean"], a["feat_std"], self.config)
 
     def params(self) -> dict:
         """The arrays :func:`predict_heading_frame` reads (numpy)."""
@@ -437,8 +496,7 @@ class BodyResidualModel:
         desc = np.asarray(desc, np.float64)
         if desc.ndim != 2 or desc.shape[1] != self.descriptor_dim:
             raise InputError(f"descriptors must be (B, {self.descriptor_dim}), got {desc.shape}")
-        cfg = self.config
-        return predict_heading_frame(desc, self.params(), cfg.num_samples, cfg.clamp_z)
+        return predict_heading_frame(desc, self.params(), self.config)
 
     def to_torch(self) -> BodyResidualNet:
         """The same prediction as a torch module (CPU; ``.to(device)`` moves it)."""
@@ -470,7 +528,7 @@ class BodyResidualNet(torch.nn.Module):
         """(B, D) float descriptors on the module's device -> (B, V, 3) float32 heading-frame
         vertices."""
         params = dict(self.named_buffers())
-        return predict_heading_frame(desc, params, self.config.num_samples, self.config.clamp_z)
+        return predict_heading_frame(desc, params, self.config)
 
 
 def fit_body_residual(
@@ -498,17 +556,25 @@ def fit_body_residual(
         raise InputError(
             f"the rig has {len(weights)} vertices, the training proxies {verts.shape[1] // 3}"
         )
-    feats = motion_features(desc, config.num_samples)
+    pose = np.asarray(desc, np.float64)[:, :57].reshape(-1, 19, 3)
+    m = bone_transforms(pose, rest_joints)
+    feats = motion_features(desc, config.num_samples, config.feature_frame, m[:, 0, :, :3])
     mean, std = feats.mean(0), np.maximum(feats.std(0), 1e-6)
     arrays = {
         "weights": weights, "rest_joints": rest_joints, "rest_vertices": rest_vertices,
         "feat_mean": mean, "feat_std": std, "coef": np.zeros((feats.shape[1] + 1, verts.shape[1])),
     }  # fmt: skip
     model = BodyResidualModel(config, desc.shape[1], arrays)
-    x = model.features(desc)
-    m = model.transforms(desc)
+    x = model.features(desc, m)
     y = np.asarray(verts, np.float64).reshape(len(desc), -1, 3) - model.base(m)
-    y = np.matmul(y, m[:, 0, :, :3]).reshape(len(desc), -1)  # into the hips' frame: R^T y
+    if config.residual_frame == "skinned":  # into each vertex's own frame: F_v^T y_v
+        used, skin = model.skin()
+        for i in range(0, len(y), 1024):
+            f = vertex_frames(m[i : i + 1024], used, skin_weights(skin))
+            y[i : i + 1024] = np.einsum("bvji,bvj->bvi", f, y[i : i + 1024])
+        y = y.reshape(len(desc), -1)
+    else:
+        y = np.matmul(y, m[:, 0, :, :3]).reshape(len(desc), -1)  # into the hips' frame: R^T y
     if config.residual_widths:
         basis = residual_basis(y, config.residual_basis)
         members = [
@@ -670,7 +736,7 @@ def body_model_from_state(
         ).all()
     ):
         raise InputError("Joint2Coarse model file's mirror map does not fit its proxy", path)
-    n_features = motion_features(np.zeros((1, descriptor_dim)), config.num_samples).shape[1]
+    n_features = feature_count(config, descriptor_dim)
     if len(arrays["feat_mean"]) != n_features:
         raise InputError(
             f"Joint2Coarse model file was made for {len(arrays['feat_mean'])} motion features, "

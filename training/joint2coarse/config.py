@@ -11,6 +11,10 @@ from training.configs import PlainConfig
 
 #: The Joint2Coarse models :attr:`Joint2CoarseConfig.model` names.
 MODELS = ("paper", "ours")
+#: The frames :attr:`Joint2CoarseConfig.residual_frame` names.
+RESIDUAL_FRAMES = ("hips", "skinned")
+#: The frames :attr:`Joint2CoarseConfig.feature_frame` names.
+FEATURE_FRAMES = ("heading", "hips", "hips+heading")
 
 
 @dataclass(frozen=True)
@@ -74,6 +78,24 @@ class Joint2CoarseConfig(PlainConfig):
     a frame costs little more than one member's). Chosen on the quick preset's validation
     motions (its model, seeds 0 to 2; ``python benchmarks/joint2coarse_validation.py P --seeds
     0 1 2 --set residual_members=N``): the quick preset's comment in ``pipeline/config.py``."""
+    residual_frame: str = "hips"
+    """``ours``: the frame the residual is predicted in: ``hips`` (the hips' rotation, every
+    vertex alike) or ``skinned`` (each vertex's own: the blend of its bones' rotations by its
+    skinning weights, orthonormalised; the residual is then a displacement of the rest proxy
+    before skinning, as a pose-corrective blend shape). On the quick project's validation
+    motions (its model, seeds 0 to 2, ``python benchmarks/joint2coarse_validation.py P --seeds 0
+    1 2 --set residual_frame=skinned``, P = a quick project with the 35-clip library, features
+    in the heading frame): ``skinned`` 23.9 / 60 mm (mean / p95) against 23.4 / 58, worse on
+    the capture windows (CMU 01_03 26.9 / 80 against 24.3 / 72): not taken."""
+    feature_frame: str = "heading"
+    """``ours``: the frame the residual's motion features are taken in
+    (:func:`~training.joint2coarse.body_model.motion_features`): ``heading`` (the descriptor's:
+    upright, turned with the pelvis's heading), ``hips`` (the whole window turned into the
+    current hips' frame, so a pelvis tilted as no training clip tilts it still gives familiar
+    features, and gravity's direction in that frame) or ``hips+heading`` (those and the current
+    pose in the heading frame too). Model files written before this field existed read as
+    ``heading``. The quick preset sets ``hips+heading`` (its comment in ``pipeline/config.py``
+    gives the figures)."""
     mirror: bool = False
     """Train on each training clip's left-right mirror too (:mod:`training.joint2coarse.augment`:
     the simulation of the mirrored motion, for no simulation; a project's garment that is not
@@ -203,6 +225,16 @@ class Joint2CoarseConfig(PlainConfig):
         if not (isinstance(self.tilt_follow, (int, float)) and 0.0 <= self.tilt_follow <= 1.0):
             raise InputError(
                 f"joint2coarse config tilt_follow={self.tilt_follow!r} must be in [0, 1]"
+            )
+        if self.residual_frame not in RESIDUAL_FRAMES:
+            raise InputError(
+                f"joint2coarse config residual_frame={self.residual_frame!r}: choose from "
+                f"{', '.join(RESIDUAL_FRAMES)}"
+            )
+        if self.feature_frame not in FEATURE_FRAMES:
+            raise InputError(
+                f"joint2coarse config feature_frame={self.feature_frame!r}: choose from "
+                f"{', '.join(FEATURE_FRAMES)}"
             )
         if not isinstance(self.mirror, bool):
             raise InputError(f"joint2coarse config mirror={self.mirror!r} must be true or false")
