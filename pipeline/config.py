@@ -392,9 +392,10 @@ PRESETS: dict[str, PipelineConfig] = {
         # residual_widths [256, 256] 23.4 / 59, residual_steps 12000 23.2 / 58 (within seed
         # noise, for twice the training): neither taken. The motion features in the current
         # hips' frame (feature_frame, seeds 0 to 2, --set feature_frame=F): hips 22.1 / 57,
-        # hips+heading 21.9 / 56, against heading 23.4 / 58, lower at every seed and on every
-        # validation motion (CMU 01_03 24.3 / 72 to 21.9 / 66): hips+heading taken. The residual
-        # in each vertex's skinned frame (residual_frame=skinned) 23.9 / 60: not taken.
+        # hips+heading 21.9 / 56, against heading 23.4 / 58, a lower mean at every seed and on
+        # every validation motion (CMU 01_03 24.5 / 72 to 21.8 / 66): hips+heading taken. The
+        # residual in each vertex's skinned frame (residual_frame=skinned) 23.9 / 60: not taken.
+        # The test motions, reported after (--test): 24.7 / 63 against 26.4 / 68, worse (README).
         joint2coarse_overrides={
             "model": "ours",
             "residual_widths": [128, 128],

@@ -12,12 +12,14 @@ the heading frame, as the sum of
    swing from there to where the bone points now. So a new pose moves the waistband and the
    front of the skirt with the legs, whatever the training clips were;
 2. a **residual** from features of the joints' history: the current pose, the velocities and
-   accelerations of the spine's and legs' joints over several lags (all in the heading frame,
-   so they do not depend on where the body stands or faces), the pelvis's turning rate over
+   accelerations of the spine's and legs' joints over several lags (in the heading frame, so
+   they do not depend on where the body stands or faces, or, with ``feature_frame``, in the
+   current frame's hips' frame, so that a pelvis tilted as no training clip tilts it gives
+   familiar features, with gravity's direction beside them), the pelvis's turning rate over
    lags up to the whole window (a spin twists and flares a skirt; with its signed square), and
    the square terms of the turning rate and speed that drive a skirt's flare (the centrifugal
    push grows with the square of the turning rate). It is predicted in the hips' frame (so it
-   tilts with the pelvis) and fitted to the simulated proxy minus the base, by small ReLU
+   tilts with the pelvis; ``residual_frame`` can put it in each vertex's skinned frame) and fitted to the simulated proxy minus the base, by small ReLU
    networks (``residual_widths``, trained with torch in seconds, ``residual_members`` of them
    averaged, their outputs weights of the training residuals' principal components, ``basis``)
    or, with no hidden layer, linearly in closed form (ridge regression, ``ridge``).

@@ -86,7 +86,7 @@ class Joint2CoarseConfig(PlainConfig):
     motions (its model, seeds 0 to 2, ``python benchmarks/joint2coarse_validation.py P --seeds 0
     1 2 --set residual_frame=skinned``, P = a quick project with the 35-clip library, features
     in the heading frame): ``skinned`` 23.9 / 60 mm (mean / p95) against 23.4 / 58, worse on
-    the capture windows (CMU 01_03 26.9 / 80 against 24.3 / 72): not taken."""
+    the capture windows (CMU 01_03 26.8 / 80 against 24.5 / 72): not taken."""
     feature_frame: str = "heading"
     """``ours``: the frame the residual's motion features are taken in
     (:func:`~training.joint2coarse.body_model.motion_features`): ``heading`` (the descriptor's:
