@@ -19,7 +19,8 @@ the heading frame, as the sum of
    lags up to the whole window (a spin twists and flares a skirt; with its signed square), and
    the square terms of the turning rate and speed that drive a skirt's flare (the centrifugal
    push grows with the square of the turning rate). It is predicted in the hips' frame (so it
-   tilts with the pelvis; ``residual_frame`` can put it in each vertex's skinned frame) and fitted to the simulated proxy minus the base, by small ReLU
+   tilts with the pelvis; ``residual_frame`` can put it in each vertex's skinned frame) and
+   fitted to the simulated proxy minus the base, by small ReLU
    networks (``residual_widths``, trained with torch in seconds, ``residual_members`` of them
    averaged, their outputs weights of the training residuals' principal components, ``basis``)
    or, with no hidden layer, linearly in closed form (ridge regression, ``ridge``).
