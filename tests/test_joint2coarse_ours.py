@@ -245,7 +245,7 @@ def test_hips_frame_features_see_a_tilted_body_as_the_same_motion(clips):
     assert_close(a[:, up], hips[:, 1, :], what="gravity's direction in the hips' frame")
     assert not np.allclose(a[:, up], b[:, up])
     head = motion_features(desc, k)
-    assert not np.allclose(head, motion_features(tilted, k)[:, : head.shape[1]])
+    assert not np.allclose(head, motion_features(tilted, k))  # the heading frame sees the tilt
     both = motion_features(desc, k, "hips+heading", hips)
     assert_close(both[:, 60:117], desc[:, :57], what="heading-frame pose")
     for frame, f in (("heading", head), ("hips", a), ("hips+heading", both)):
