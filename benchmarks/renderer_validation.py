@@ -1,15 +1,19 @@
 """A renderer or a baseline on a project's validation motion: what its settings are chosen on.
 
 Usage: ``python benchmarks/renderer_validation.py PROJECT --method ours|pix2pix|dnr|dnr-gan
-[--set KEY=VALUE ...] [--seeds 0 1] [--source sim|joint2coarse] [--json]``
+[--set KEY=VALUE ...] [--seeds 0 1] [--source sim|joint2coarse] [--steps N] [--device cpu|cuda]
+[--workers W] [--json]``
 
 Trains the method as the project would (its preset and settings; ``--set`` changes one field of
 the method's configuration, as ``dng train renderer`` / ``dng train baselines`` read it, e.g.
 ``--set lr_g=2e-4 --set lr_decay_from=0.5``) on the project's data set (its training motion's
 images over the proxy ``--source`` names: the simulated one, or Joint2Coarse's prediction of it;
-default the project's ``renderer_source``), once per ``--seeds``,
-in a temporary folder: the project's models are left as they are. Then scores it on the
-renderers' validation motion (protocol V, ``renderer_validation``: its own cameras) on
+default the project's ``renderer_source``), once per ``--seeds``, in a temporary folder: the
+project's models are left as they are. ``--steps`` changes the budget (default the project's
+``renderer_steps``; a baseline trains as many steps as ours, on our schedule, so every method
+gets the longer budget alike); ``--device`` trains on a GPU, with ``--workers`` loader processes
+(the batches, hence the weights, do not depend on them); scoring runs on the CPU. Then scores it
+on the renderers' validation motion (protocol V, ``renderer_validation``: its own cameras) on
 Joint2Coarse's proxy and on the simulated one, and prints the garment region's MSE and SSIM,
 the full frame's MSE and the flicker (means over the samples), per seed and over the seeds.
 
@@ -62,8 +66,15 @@ def main() -> None:
     ap.add_argument(
         "--source", choices=list(SOURCES), help="the proxy it trains on (default: the project's)"
     )
+    ap.add_argument("--steps", type=int, help="training steps (default: the project's)")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda[:i] (training; scored on the CPU)")
+    ap.add_argument("--workers", type=int, default=0, help="data loader processes")
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
+    if args.steps is not None and args.steps < 1:
+        ap.error(f"--steps must be a positive integer, got {args.steps}")
+    if args.workers < 0:
+        ap.error(f"--workers must be >= 0, got {args.workers}")
 
     torch.set_num_threads(1)
     project = Project(args.project)
@@ -73,6 +84,8 @@ def main() -> None:
             config = replace(config, renderer_validation=args.motion)
         if args.source:
             config = replace(config, renderer_source=args.source)
+        if args.steps is not None:
+            config = replace(config, renderer_steps=args.steps)
         validation = renderer_validation_motion(config)
     except InputError as exc:
         ap.error(str(exc))
@@ -100,10 +113,15 @@ def main() -> None:
             start = time.perf_counter()
             if args.method == "ours":
                 cfg = renderer_config(seeded)
-                result = train_renderer(data, tmp, cfg, progress=False)
+                result = train_renderer(
+                    data, tmp, cfg, progress=False, device=args.device, workers=args.workers
+                )
             else:
                 cfg = baseline_config(seeded, args.method)
-                result = train_baseline(args.method, data, tmp, cfg, progress=False)
+                result = train_baseline(
+                    args.method, data, tmp, cfg, progress=False, device=args.device,
+                    workers=args.workers,
+                )  # fmt: skip
             train_s = time.perf_counter() - start
             model = load_for_evaluation(result.model_path)
         results, _ = evaluate_motion(
@@ -119,7 +137,7 @@ def main() -> None:
     }
     out = {
         "method": args.method, "changes": changes, "source": config.renderer_source,
-        "motion": validation.name,
+        "motion": validation.name, "device": args.device,
         "config": cfg.to_dict(), "runs": runs, "mean_over_seeds": mean,
     }  # fmt: skip
     if args.json:
