@@ -538,7 +538,7 @@ def renderer_config(config: PipelineConfig):
 
 def baseline_config(config: PipelineConfig, kind: str):
     """A baseline's configuration: the preset matching the renderer's, with as many steps as
-    ours and our optimiser schedule (``lr_g``, ``lr_decay_from``). On the quick project's
+    ours and our optimiser schedule (``lr_g``, ``lr_decay_from``, ``adam_eps``). On the quick project's
     validation motion (``python benchmarks/renderer_validation.py P --method KIND --set ...``,
     seed 0, garment-region MSE on Joint2Coarse's / the simulated proxy) our schedule beat each
     baseline's own: DNR 0.0229 / 0.0094 against 0.0237 / 0.0106 at its 1e-4 constant (2e-4
@@ -558,7 +558,7 @@ def baseline_config(config: PipelineConfig, kind: str):
     ours = renderer_config(config)
     cfg = names[name].replace(
         image_size=config.image_size, seed=config.seed, steps=ours.steps, lr_g=ours.lr_g,
-        lr_decay_from=ours.lr_decay_from,
+        lr_decay_from=ours.lr_decay_from, adam_eps=ours.adam_eps,
     )  # fmt: skip
     if kind == "dnr-gan":  # "DNR with our loss": the weights ours trains with, overrides included
         loss = ("w_l1", "w_perceptual", "w_fm", "w_gan")

@@ -239,3 +239,16 @@ def test_baseline_learning_rates_follow_the_schedule(data, tmp_path, monkeypatch
     assert preset("dnr", "cpu").lr_decay_from == 1.0  # measured: decay made the baselines worse
     with pytest.raises(InputError, match="lr_decay_from"):
         preset("pix2pix", "tiny").replace(lr_decay_from=2)
+
+
+def test_baseline_adam_eps_reaches_its_optimiser(data, tmp_path, monkeypatch):
+    import training.adversarial as train_module  # the one trainer's optimisers
+
+    seen = []
+    real = train_module.adam
+    monkeypatch.setattr(train_module, "adam", lambda *a: (seen.append(a[3]), real(*a))[1])
+    cfg = preset("dnr", "tiny").replace(steps=1, adam_eps=1e-15)
+    train_baseline("dnr", data, tmp_path, cfg, progress=False)
+    assert seen[0] == 1e-15
+    with pytest.raises(InputError, match="adam_eps"):
+        preset("pix2pix", "tiny").replace(adam_eps=0)

@@ -263,3 +263,17 @@ def test_l1_alone_trains_no_discriminator_and_the_same_generator(data, tmp_path,
     assert with_d.discriminator is not None
     for k, v in plain.net.state_dict().items():
         assert torch.equal(v, with_d.net.state_dict()[k]), k
+
+
+def test_adam_eps_reaches_both_optimisers_and_bad_values_are_refused(data, tmp_path, monkeypatch):
+    import training.adversarial as train_module  # the one trainer's optimisers
+
+    seen = []
+    real = train_module.adam
+    monkeypatch.setattr(train_module, "adam", lambda *a: (seen.append(a[3]), real(*a))[1])
+    cfg = TINY.replace(steps=1, adam_eps=1e-15, preview_every=0)
+    train_renderer(data, tmp_path, cfg, progress=False)
+    assert seen == [1e-15, 1e-15]  # the generator's and the discriminator's
+    for bad in (0.0, -1e-8, float("nan"), True, "small"):
+        with pytest.raises(InputError, match="adam_eps"):
+            TINY.replace(adam_eps=bad)

@@ -57,6 +57,7 @@ class GanConfig(Protocol):
     lr_g: float
     lr_d: float
     betas: tuple[float, float]
+    adam_eps: float
     lr_decay_from: float
     gan_mode: str
     w_l1: float
@@ -129,11 +130,11 @@ def world_size() -> int:
     return dist.get_world_size() if dist.is_available() and dist.is_initialized() else 1
 
 
-def adam(params: Iterable[nn.Parameter], lr: float, betas, device: torch.device):
+def adam(params: Iterable[nn.Parameter], lr: float, betas, eps: float, device: torch.device):
     """Adam, fused on CPU and CUDA (several times faster than the per-tensor loop on a large
     neural texture)."""
     fused = device.type in ("cpu", "cuda")
-    return torch.optim.Adam(list(params), lr=lr, betas=tuple(betas), fused=fused)
+    return torch.optim.Adam(list(params), lr=lr, betas=tuple(betas), eps=eps, fused=fused)
 
 
 class AdversarialTrainer(AdversarialRun):
@@ -187,11 +188,13 @@ class AdversarialTrainer(AdversarialRun):
             )
         self.net.to(device)
         self.g_params = [p for p in generator.parameters() if p.requires_grad]
-        self.opt_g = adam(self.g_params, config.lr_g, config.betas, device)
+        self.opt_g = adam(self.g_params, config.lr_g, config.betas, config.adam_eps, device)
         self.opt_d = None
         if discriminator is not None:
             discriminator.to(device)
-            self.opt_d = adam(discriminator.parameters(), config.lr_d, config.betas, device)
+            self.opt_d = adam(
+                discriminator.parameters(), config.lr_d, config.betas, config.adam_eps, device
+            )
         self.precision = precision
         self.amp = precision != "fp32"
         scaled = precision == "fp16"  # bfloat16 has float32's range: no loss scaling

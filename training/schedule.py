@@ -1,4 +1,5 @@
-"""Learning-rate schedule shared by the neural renderer and the baselines.
+"""Learning-rate schedule shared by the neural renderer and the baselines, and the checks of
+the optimiser settings they share.
 
 Constant, then a linear fall to zero: ``decay_from`` is the fraction of a run's steps after
 which the rate starts to fall. 1.0 keeps it constant (the paper's Adam at a fixed rate).
@@ -20,6 +21,14 @@ def check_decay_from(value: object, owner: str) -> None:
         isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value <= 1.0
     ):
         raise InputError(f"{owner} config lr_decay_from={value!r} must be a number in [0, 1]")
+
+
+def check_adam_eps(value: object, owner: str) -> None:
+    """``InputError`` unless ``value`` is a finite number > 0 (Adam's ``eps``)."""
+    if isinstance(value, bool) or not (
+        isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+    ):
+        raise InputError(f"{owner} config adam_eps={value!r} must be a finite number > 0")
 
 
 def lr_scale(step: int, steps: int, decay_from: float) -> float:

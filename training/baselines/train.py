@@ -78,7 +78,7 @@ def build_model(config: BaselineConfig) -> BaselineModel:
 
 def _config_from(kind: str, data: dict) -> BaselineConfig:
     cls = Pix2PixConfig if kind == "pix2pix" else DNRConfig
-    return cls.from_dict(data)
+    return cls.from_dict({"adam_eps": 1e-8, **data})  # files from before it: torch's default
 
 
 @dataclass(frozen=True)
