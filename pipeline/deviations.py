@@ -29,6 +29,8 @@ PAPER_TEXTURE = ((512, 256, 128, 64), 16)
 PAPER_LATENT = (16, 16, 512)  # at 512 px
 PAPER_LOSS = {"w_l1": 10.0, "w_perceptual": 10.0, "w_fm": 5.0, "w_gan": 0.5}
 PAPER_LR = {"lr_g": 1e-4, "lr_d": 3e-4}
+#: Adam's eps: the paper names none, so the libraries' default.
+PAPER_ADAM_EPS = 1e-8
 
 
 @dataclass(frozen=True)
@@ -304,6 +306,14 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             f"Adam {_schedule(PAPER_LR['lr_g'], 1.0)} (D {PAPER_LR['lr_d']:g})",
             f"{_schedule(r.lr_g, r.lr_decay_from)} (D {r.lr_d:g})",
             "a few hundred steps: measured in `lr_decay_from`'s docstring",
+        )
+    if r.adam_eps != PAPER_ADAM_EPS:
+        add(
+            "training",
+            f"Adam's eps not stated (the libraries' default, {PAPER_ADAM_EPS:g})",
+            f"{r.adam_eps:g}, for every method",
+            "a neural texel's gradient is about 1e-10: at 1e-8 the texture hardly learns "
+            "(`adam_eps`'s docstring)",
         )
     if config.renderer_source == "joint2coarse":
         add(
