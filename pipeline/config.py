@@ -538,8 +538,8 @@ def renderer_config(config: PipelineConfig):
 
 def baseline_config(config: PipelineConfig, kind: str):
     """A baseline's configuration: the preset matching the renderer's, with as many steps as
-    ours and our optimiser schedule (``lr_g``, ``lr_decay_from``, ``adam_eps``). On the quick project's
-    validation motion (``python benchmarks/renderer_validation.py P --method KIND --set ...``,
+    ours and our optimiser schedule (``lr_g``, ``lr_decay_from``, ``adam_eps``). On the quick
+    project's validation motion (``python benchmarks/renderer_validation.py P --method KIND --set ...``,
     seed 0, garment-region MSE on Joint2Coarse's / the simulated proxy) our schedule beat each
     baseline's own: DNR 0.0229 / 0.0094 against 0.0237 / 0.0106 at its 1e-4 constant (2e-4
     constant: 0.0232 / 0.0094; 1e-4 falling: 0.0243 / 0.0118), DNR with our GAN 0.0246 /

@@ -248,7 +248,12 @@ def test_baseline_adam_eps_reaches_its_optimiser(data, tmp_path, monkeypatch):
     real = train_module.adam
     monkeypatch.setattr(train_module, "adam", lambda *a: (seen.append(a[3]), real(*a))[1])
     cfg = preset("dnr", "tiny").replace(steps=1, adam_eps=1e-15)
-    train_baseline("dnr", data, tmp_path, cfg, progress=False)
+    res = train_baseline("dnr", data, tmp_path, cfg, progress=False)
     assert seen[0] == 1e-15
+    # a model file from before adam_eps reads as trained, at torch's default
+    payload = torch.load(res.model_path, weights_only=True)
+    del payload["config"]["adam_eps"]
+    torch.save(payload, tmp_path / "old.pt")
+    assert load_baseline(tmp_path / "old.pt").config == cfg.replace(adam_eps=1e-8)
     with pytest.raises(InputError, match="adam_eps"):
         preset("pix2pix", "tiny").replace(adam_eps=0)

@@ -76,6 +76,10 @@ def test_training_lowers_the_loss_with_perceptual_on(data, tmp_path):
     del payload["config"]["lr_decay_from"]
     torch.save(payload, tmp_path / "old.pt")
     assert load_model(tmp_path / "old.pt")[0] == cfg.replace(lr_decay_from=1.0)
+    # ... and one from before adam_eps at torch's default eps
+    del payload["config"]["adam_eps"]
+    torch.save(payload, tmp_path / "older.pt")
+    assert load_model(tmp_path / "older.pt")[0] == cfg.replace(lr_decay_from=1.0, adam_eps=1e-8)
 
 
 def test_resume_after_kill_gives_the_same_weights(data, tmp_path):
