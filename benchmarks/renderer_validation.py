@@ -75,6 +75,12 @@ def main() -> None:
         ap.error(f"--steps must be a positive integer, got {args.steps}")
     if args.workers < 0:
         ap.error(f"--workers must be >= 0, got {args.workers}")
+    try:
+        device = torch.device(args.device)
+    except RuntimeError:
+        ap.error(f"--device {args.device!r}: not a torch device (cpu, cuda, cuda:1, ...)")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        ap.error(f"--device {args.device}: no CUDA GPU on this machine")
 
     torch.set_num_threads(1)
     project = Project(args.project)

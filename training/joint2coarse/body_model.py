@@ -25,8 +25,9 @@ the heading frame, as the sum of
    averaged, their outputs weights of the training residuals' principal components, ``basis``)
    or, with no hidden layer, linearly in closed form (ridge regression, ``ridge``).
 
-Both parts are a few matrix products per frame, so it streams in about 0.9 ms a frame for a
-2k-vertex proxy. Arrays are numpy float64 inside, float32 stored.
+Both parts are a few matrix products per frame, so it streams a 2k-vertex proxy in under 2 ms
+a frame on one core (the quick preset's model, symmetric, three networks: the README's figure,
+from ``benchmarks/joint2coarse_speed.py``). Arrays are numpy float64 inside, float32 stored.
 
 The prediction's functions (:func:`bone_transforms`, :func:`motion_features`,
 :func:`predict_heading_frame`) take numpy arrays or torch tensors and compute with the library
@@ -220,6 +221,12 @@ def bone_transforms(pose, rest_joints):
     return xp.concatenate([rot, move[..., None]], axis=-1)
 
 
+def descriptor_transforms(desc, rest_joints):
+    """(B, D) descriptors -> (B, 20, 3, 4) float64 :func:`bone_transforms` of each frame's pose
+    (the descriptor's first sample). numpy or torch."""
+    return bone_transforms(_as(desc, "float64")[:, :57].reshape(-1, 19, 3), rest_joints)
+
+
 def motion_features(desc, num_samples: int, frame: str = "heading", hips=None):
     """The residual's inputs from descriptors (see the module docstring).
 
@@ -404,7 +411,7 @@ def _predict_once(desc, params: dict, config: Joint2CoarseConfig):
     """:func:`predict_heading_frame` of one motion (no mirror)."""
     xp, p = _xp(desc), params
     desc = _as(desc, "float64")
-    m = bone_transforms(desc[:, :57].reshape(-1, 19, 3), p["rest_joints"])
+    m = descriptor_transforms(desc, p["rest_joints"])
     x = _as(residual_inputs(desc, m, p["feat_mean"], p["feat_std"], config), "float32")
     x = residual_hidden(x, [p[n] for n in hidden_names(p)]) @ p["coef"]
     if "basis" in p:
@@ -461,8 +468,7 @@ class BodyResidualModel:
 
     def transforms(self, desc: np.ndarray) -> np.ndarray:
         """(B, D) descriptors -> (B, 20, 3, 4) float64 :func:`bone_transforms` of each frame."""
-        pose = np.asarray(desc, np.float64)[:, :57].reshape(-1, 19, 3)
-        return bone_transforms(pose, self.arrays["rest_joints"])
+        return descriptor_transforms(np.asarray(desc), self.arrays["rest_joints"])
 
     def skin(self) -> tuple[np.ndarray, np.ndarray]:
         """:func:`skin_matrix` of the rig (built once)."""
@@ -559,8 +565,7 @@ def fit_body_residual(
         raise InputError(
             f"the rig has {len(weights)} vertices, the training proxies {verts.shape[1] // 3}"
         )
-    pose = np.asarray(desc, np.float64)[:, :57].reshape(-1, 19, 3)
-    m = bone_transforms(pose, rest_joints)
+    m = descriptor_transforms(np.asarray(desc), rest_joints)
     feats = motion_features(desc, config.num_samples, config.feature_frame, m[:, 0, :, :3])
     mean, std = feats.mean(0), np.maximum(feats.std(0), 1e-6)
     arrays = {
