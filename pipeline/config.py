@@ -538,7 +538,8 @@ def renderer_config(config: PipelineConfig):
 
 def baseline_config(config: PipelineConfig, kind: str):
     """A baseline's configuration: the preset matching the renderer's, with as many steps as
-    ours and our optimiser schedule (``lr_g``, ``lr_decay_from``, ``adam_eps``). On the quick
+    ours and our optimiser schedule (``lr_g``, ``lr_decay_from``, ``adam_eps``,
+    ``texture_lr_scale``). On the quick
     project's validation motion (``python benchmarks/renderer_validation.py P --method KIND --set ...``,
     seed 0, garment-region MSE on Joint2Coarse's / the simulated proxy) our schedule beat each
     baseline's own: DNR 0.0229 / 0.0094 against 0.0237 / 0.0106 at its 1e-4 constant (2e-4
@@ -559,6 +560,7 @@ def baseline_config(config: PipelineConfig, kind: str):
     cfg = names[name].replace(
         image_size=config.image_size, seed=config.seed, steps=ours.steps, lr_g=ours.lr_g,
         lr_decay_from=ours.lr_decay_from, adam_eps=ours.adam_eps,
+        texture_lr_scale=ours.texture_lr_scale,
     )  # fmt: skip
     if kind == "dnr-gan":  # "DNR with our loss": the weights ours trains with, overrides included
         loss = ("w_l1", "w_perceptual", "w_fm", "w_gan")

@@ -403,6 +403,8 @@ def test_overrides_reach_their_network_and_dnr_with_our_loss():
     for kind in ("pix2pix", "dnr", "dnr-gan"):  # every baseline on our optimiser schedule
         b = baseline_config(quick, kind)
         assert (b.lr_g, b.lr_decay_from) == (ours.lr_g, ours.lr_decay_from)
+    fast_texels = replace(quick, renderer_overrides={"texture_lr_scale": 10.0})
+    assert baseline_config(fast_texels, "dnr").texture_lr_scale == 10.0  # ours' texture's rate
     listed = replace(quick, renderer_overrides={"texture_sizes": [64, 32], "steps": 7})
     cfg = renderer_config(listed)
     assert cfg.texture_sizes == (64, 32) and cfg.steps == 7  # JSON lists become tuples

@@ -58,6 +58,7 @@ class GanConfig(Protocol):
     lr_d: float
     betas: tuple[float, float]
     adam_eps: float
+    texture_lr_scale: float
     lr_decay_from: float
     gan_mode: str
     w_l1: float
@@ -130,11 +131,22 @@ def world_size() -> int:
     return dist.get_world_size() if dist.is_available() and dist.is_initialized() else 1
 
 
-def adam(params: Iterable[nn.Parameter], lr: float, betas, eps: float, device: torch.device):
-    """Adam, fused on CPU and CUDA (several times faster than the per-tensor loop on a large
-    neural texture)."""
+def adam(params: Iterable, lr: float, betas, eps: float, device: torch.device):
+    """Adam over parameters or parameter groups, fused on CPU and CUDA (several times faster
+    than the per-tensor loop on a large neural texture)."""
     fused = device.type in ("cpu", "cuda")
     return torch.optim.Adam(list(params), lr=lr, betas=tuple(betas), eps=eps, fused=fused)
+
+
+def generator_groups(generator: nn.Module, lr: float, texture_lr_scale: float) -> list[dict]:
+    """The generator's trainable parameters as Adam's groups: the neural texture's
+    (``texture.*``, where the generator has one) at ``lr * texture_lr_scale``, the rest at
+    ``lr``; each group's ``lr_scale`` is what :func:`~training.schedule.set_lr` keeps."""
+    named = [(n, p) for n, p in generator.named_parameters() if p.requires_grad]
+    texture = [p for n, p in named if n.startswith("texture.")]
+    rest = [p for n, p in named if not n.startswith("texture.")]
+    groups = [(rest, 1.0), (texture, texture_lr_scale)]
+    return [{"params": ps, "lr": lr * s, "lr_scale": s} for ps, s in groups if ps]
 
 
 class AdversarialTrainer(AdversarialRun):
@@ -188,7 +200,10 @@ class AdversarialTrainer(AdversarialRun):
             )
         self.net.to(device)
         self.g_params = [p for p in generator.parameters() if p.requires_grad]
-        self.opt_g = adam(self.g_params, config.lr_g, config.betas, config.adam_eps, device)
+        self.opt_g = adam(
+            generator_groups(generator, config.lr_g, config.texture_lr_scale),
+            config.lr_g, config.betas, config.adam_eps, device,
+        )  # fmt: skip
         self.opt_d = None
         if discriminator is not None:
             discriminator.to(device)

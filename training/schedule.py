@@ -23,12 +23,13 @@ def check_decay_from(value: object, owner: str) -> None:
         raise InputError(f"{owner} config lr_decay_from={value!r} must be a number in [0, 1]")
 
 
-def check_adam_eps(value: object, owner: str) -> None:
-    """``InputError`` unless ``value`` is a finite number > 0 (Adam's ``eps``)."""
+def check_positive(value: object, owner: str, name: str) -> None:
+    """``InputError`` unless ``value`` (``owner``'s setting ``name``: Adam's ``eps``, a
+    learning-rate factor) is a finite number > 0."""
     if isinstance(value, bool) or not (
         isinstance(value, (int, float)) and math.isfinite(value) and value > 0
     ):
-        raise InputError(f"{owner} config adam_eps={value!r} must be a finite number > 0")
+        raise InputError(f"{owner} config {name}={value!r} must be a finite number > 0")
 
 
 def lr_scale(step: int, steps: int, decay_from: float) -> float:
@@ -49,7 +50,9 @@ def lr_scale(step: int, steps: int, decay_from: float) -> float:
 
 
 def set_lr(optimizer: torch.optim.Optimizer | None, lr: float) -> None:
-    """Set every parameter group's learning rate (no-op without an optimiser)."""
+    """Set every parameter group's learning rate to ``lr`` times the group's ``lr_scale`` (1
+    where it has none; a neural texture's group has ``texture_lr_scale``); no-op without an
+    optimiser."""
     if optimizer is not None:
         for group in optimizer.param_groups:
-            group["lr"] = lr
+            group["lr"] = lr * group.get("lr_scale", 1.0)

@@ -27,7 +27,7 @@ from torch import nn
 from core.errors import InputError
 from training.configs import PlainConfig
 from training.renderer.data import CUR, RenderBatch
-from training.schedule import check_adam_eps, check_decay_from
+from training.schedule import check_decay_from, check_positive
 
 #: Channels of every sample key (None: any count, e.g. the motion features).
 CHANNELS: dict[str, int | None] = {
@@ -125,6 +125,9 @@ class BaselineConfig(PlainConfig):
     validation figures that chose it are)."""
     betas: tuple[float, float] = (0.5, 0.999)
     """Adam betas."""
+    texture_lr_scale: float = 1.0
+    """Factor on ``lr_g`` for a neural texture's texels (DNR; Pix2Pix has none): the
+    renderer's (``RendererConfig.texture_lr_scale``) in a project."""
     adam_eps: float = 1e-15
     """Adam's ``eps``: the renderer's (``training.renderer.config.RendererConfig.adam_eps``,
     where the validation figures that chose it are). Model files written before this field
@@ -166,7 +169,8 @@ class BaselineConfig(PlainConfig):
         if any(not isinstance(c, int) or c < 0 for c in self.vgg_channels):
             raise InputError(f"vgg_channels={self.vgg_channels!r} must be integers >= 0")
         check_decay_from(self.lr_decay_from, self.kind)
-        check_adam_eps(self.adam_eps, self.kind)
+        check_positive(self.adam_eps, self.kind, "adam_eps")
+        check_positive(self.texture_lr_scale, self.kind, "texture_lr_scale")
 
     @property
     def baseline(self) -> str:

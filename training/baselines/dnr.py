@@ -32,7 +32,7 @@ from torch import nn
 from core.errors import InputError
 from training.baselines.common import BaselineConfig, BaselineModel, UNet
 from training.renderer.data import CUR, NEXT, PREV
-from training.renderer.model import NeuralTexture, PatchDiscriminator
+from training.renderer.model import NeuralTexture, PatchDiscriminator, texture_colour_loss
 
 
 @dataclass(frozen=True)
@@ -151,9 +151,9 @@ class DeferredNeuralRenderer(BaselineModel):
     def extra_loss(self, batch: dict, aux: dict) -> torch.Tensor:
         """DNR's texture regulariser: L1 of the first 3 sampled channels to the image, on the
         proxy (mean over the proxy's pixels and channels)."""
-        m = batch["proxy_mask"][:, CUR]
-        diff = (aux["texture"][:, :3] - batch["target"][:, CUR]).abs() * m
-        return diff.sum() / (3 * m.sum()).clamp_min(1.0)
+        return texture_colour_loss(
+            aux["texture"], batch["target"][:, CUR], batch["proxy_mask"][:, CUR]
+        )
 
     def make_discriminator(self) -> nn.Module | None:
         return PatchDiscriminator(self.config.disc_width) if self.config.gan else None

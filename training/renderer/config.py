@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from core.errors import InputError
 from training.configs import PlainConfig
-from training.schedule import check_adam_eps, check_decay_from
+from training.schedule import check_decay_from, check_positive
 
 #: Channels of the paper's motion features: 19 joints x 5 frames (core.features layout).
 MOTION_CHANNELS = 95
@@ -89,6 +89,10 @@ class RendererConfig(PlainConfig):
     """Weight of discriminator feature matching."""
     w_gan: float = 0.5
     """Weight of the generator's GAN loss."""
+    w_texture: float = 0.0
+    """Weight of DNR's texture regulariser on our neural texture (the first 3 channels of the
+    sampled texture pulled towards the image on the proxy,
+    :func:`~training.renderer.model.texture_colour_loss`); 0, the paper's renderer, has none."""
     lr_g: float = 2e-4
     """Adam learning rate of the network and the neural texture (1e-4 in the paper and its
     preset; 2e-4 for the few thousand steps a CPU run can afford, as the baselines)."""
@@ -112,6 +116,9 @@ class RendererConfig(PlainConfig):
     0.0111: it stays."""
     betas: tuple[float, float] = (0.5, 0.999)
     """Adam betas of both optimisers."""
+    texture_lr_scale: float = 1.0
+    """Factor on ``lr_g`` (and on its schedule) for the neural texture's texels; 1: the
+    network's rate."""
     adam_eps: float = 1e-15
     """Adam's ``eps`` (both optimisers; every method has the same). A neural texel is seen by a
     few pixels of a mean-reduced loss, so its gradient is tiny: about 1e-10 on the quick
@@ -187,12 +194,13 @@ class RendererConfig(PlainConfig):
             raise InputError(f"gan_mode must be one of {GAN_MODES}, got {self.gan_mode!r}")
         if any(not isinstance(c, int) or c < 0 for c in self.vgg_channels):
             raise InputError(f"vgg_channels={self.vgg_channels!r} must be integers >= 0")
-        for name in ("w_l1", "w_perceptual", "w_fm", "w_gan", "lr_g", "lr_d"):
+        for name in ("w_l1", "w_perceptual", "w_fm", "w_gan", "w_texture", "lr_g", "lr_d"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"renderer config {name}={v!r} must be a finite number >= 0")
         check_decay_from(self.lr_decay_from, "renderer")
-        check_adam_eps(self.adam_eps, "renderer")
+        check_positive(self.adam_eps, "renderer", "adam_eps")
+        check_positive(self.texture_lr_scale, "renderer", "texture_lr_scale")
         if self.precision not in PRECISIONS:
             raise InputError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
         if not 0.0 < self.body_finetune_fraction <= 1.0:

@@ -75,6 +75,20 @@ class NeuralTexture(nn.Module):
         return torch.cat(out, 1) * mask
 
 
+def texture_colour_loss(
+    texture: torch.Tensor, image: torch.Tensor, mask: torch.Tensor
+) -> torch.Tensor:
+    """DNR's texture regulariser: L1 of a sampled neural texture's first 3 channels to the image,
+    on the proxy, so the texture's first level starts as a colour texture.
+
+    texture (B, L * C, H, W) (:class:`NeuralTexture`'s output), image (B, 3, H, W), mask
+    (B, 1, H, W), 1 on the proxy -> scalar: the mean over the proxy's pixels and the 3 channels
+    (0 for an empty mask).
+    """
+    diff = (texture[:, :3] - image).abs() * mask
+    return diff.sum() / (3 * mask.sum()).clamp_min(1.0)
+
+
 def _act() -> nn.Module:
     return nn.LeakyReLU(_SLOPE)
 
@@ -319,19 +333,27 @@ class RenderNet(nn.Module):
         motion_prev: torch.Tensor | None,
         mask_prev: torch.Tensor,
         background: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Render frame t from its inputs and frame t-1's: (rgb (B, 3, H, W), A (B, 1, H, W))."""
-        if not self.config.use_temporal:  # frame t-1 is never looked at: not encoded either
-            z, skips = self.encode_with_skips(self.input_features(uv, motion, mask))
-            return self.decode(z, z, background, skips)
+        with_texture: bool = False,
+    ) -> tuple[torch.Tensor, ...]:
+        """Render frame t from its inputs and frame t-1's: (rgb (B, 3, H, W), A (B, 1, H, W)),
+        and with ``with_texture`` frame t's texture sample (B, L * C, H, W) third (what a
+        texture regulariser reads, through the same forward as the image)."""
         b = uv.shape[0]
-        x = self.input_features(
-            torch.cat([uv, uv_prev]),
-            None if motion is None else torch.cat([motion, motion_prev]),
-            torch.cat([mask, mask_prev]),
-        )
-        z, skips = self.encode_with_skips(x)
-        return self.decode(z[:b], z[b:], background, [f[:b] for f in skips])
+        if not self.config.use_temporal:  # frame t-1 is never looked at: not encoded either
+            x = self.input_features(uv, motion, mask)
+            z, skips = self.encode_with_skips(x)
+            out = self.decode(z, z, background, skips)
+        else:
+            x = self.input_features(
+                torch.cat([uv, uv_prev]),
+                None if motion is None else torch.cat([motion, motion_prev]),
+                torch.cat([mask, mask_prev]),
+            )
+            z, skips = self.encode_with_skips(x)
+            out = self.decode(z[:b], z[b:], background, [f[:b] for f in skips])
+        if with_texture:
+            return (*out, x[:b, : self.config.texture_out_channels])
+        return out
 
 
 def background_finetune_parameters(net: RenderNet) -> list[str]:

@@ -40,7 +40,12 @@ from training.loader import batches, for_device
 from training.loop import run_steps
 from training.renderer.config import RendererConfig
 from training.renderer.data import CUR, NEXT, PREV, RenderBatch
-from training.renderer.model import PatchDiscriminator, RenderNet, background_finetune_parameters
+from training.renderer.model import (
+    PatchDiscriminator,
+    RenderNet,
+    background_finetune_parameters,
+    texture_colour_loss,
+)
 
 CHECKPOINT_FORMAT = "renderer-train/1"
 MODEL_FORMAT = "renderer-model/1"
@@ -171,17 +176,21 @@ class RendererMethod:
     """Our renderer as a :class:`training.adversarial.Method`: the generator renders R_t from
     frames t and t-1 (:meth:`RenderBatch.generator_inputs`); the discriminator sees
     consecutive-frame pairs, ``[R_t, I_{t-1}]`` and ``[I_{t+1}, R_t]`` (fake), ``[I_t, I_{t-1}]``
-    and ``[I_{t+1}, I_t]`` (real), or without ``temporal`` single frames, R_t against I_t; no
-    regulariser of its own."""
+    and ``[I_{t+1}, I_t]`` (real), or without ``temporal`` single frames, R_t against I_t. Its
+    regulariser, weighted by ``w_texture`` (0: none), is DNR's on frame t's sampled texture."""
 
-    extra_weight = 0.0
-
-    def __init__(self, use_motion: bool, temporal: bool = True):
+    def __init__(self, use_motion: bool, temporal: bool = True, w_texture: float = 0.0):
         self.use_motion = use_motion
         self.temporal = temporal
+        self.extra_weight = w_texture
 
-    def generate(self, net, batch: RenderBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        return net(**batch.generator_inputs(self.use_motion))
+    def generate(self, net, batch: RenderBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(R_t (B, 3, H, W), frame t's sampled texture (B, L * C, H, W), or None without the
+        regulariser)."""
+        if self.extra_weight <= 0:
+            return net(**batch.generator_inputs(self.use_motion))[0], None
+        rgb, _, texture = net(**batch.generator_inputs(self.use_motion), with_texture=True)
+        return rgb, texture
 
     def target(self, batch: RenderBatch) -> torch.Tensor:
         return batch.target[:, CUR]
@@ -198,7 +207,7 @@ class RendererMethod:
         return real, torch.cat([torch.cat([fake, prev], 1), torch.cat([nxt, fake], 1)])
 
     def extra_loss(self, batch: RenderBatch, aux) -> torch.Tensor:
-        return batch.target.new_zeros(())
+        return texture_colour_loss(aux, batch.target[:, CUR], batch.proxy_mask[:, CUR])
 
 
 def renderer_trainer(
@@ -249,7 +258,8 @@ def renderer_trainer(
         extra={"init_from": "" if init_from is None else str(init_from)},
     )
     return AdversarialTrainer(
-        net, disc, RendererMethod(config.use_motion, config.use_temporal), config, files,
+        net, disc, RendererMethod(config.use_motion, config.use_temporal, config.w_texture),
+        config, files,
         n_samples=len(dataset), batch_size=config.batch_size, steps=steps, device=device,
         precision=config.resolved_precision(device.type),
     )  # fmt: skip
