@@ -315,6 +315,15 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "a neural texel's gradient is about 1e-10: at 1e-8 the texture hardly learns "
             "(`adam_eps`'s docstring)",
         )
+    if r.texture_lr_scale != 1.0:
+        add(
+            "training",
+            "one learning rate for the network and its neural texture",
+            f"the texture's texels at {r.texture_lr_scale:g}x the network's rate, for ours and "
+            "DNR",
+            "with Adam a texel moves about the rate a step: a few hundred steps at one rate "
+            "left the texture near its initial noise (`texture_lr_scale`'s docstring)",
+        )
     if config.renderer_source == "joint2coarse":
         add(
             "training",

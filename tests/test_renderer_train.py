@@ -80,6 +80,12 @@ def test_training_lowers_the_loss_with_perceptual_on(data, tmp_path):
     del payload["config"]["adam_eps"]
     torch.save(payload, tmp_path / "older.pt")
     assert load_model(tmp_path / "older.pt")[0] == cfg.replace(lr_decay_from=1.0, adam_eps=1e-8)
+    # ... and one from before texture_lr_scale at one rate
+    assert cfg.texture_lr_scale == 100.0
+    del payload["config"]["texture_lr_scale"]
+    torch.save(payload, tmp_path / "oldest.pt")
+    old = cfg.replace(lr_decay_from=1.0, adam_eps=1e-8, texture_lr_scale=1.0)
+    assert load_model(tmp_path / "oldest.pt")[0] == old
 
 
 def test_resume_after_kill_gives_the_same_weights(data, tmp_path):
@@ -301,7 +307,14 @@ def test_texture_regulariser_pulls_our_texture_towards_the_image(data, tmp_path)
             return float(texture_colour_loss(tex, batch.target[:, CUR], inputs["mask"]))
 
     cfg = TINY.replace(
-        steps=8, lr_g=0.02, w_l1=0.0, w_perceptual=0.0, w_fm=0.0, w_gan=0.0, w_texture=1.0
+        steps=8,
+        lr_g=0.02,
+        texture_lr_scale=1.0,
+        w_l1=0.0,
+        w_perceptual=0.0,
+        w_fm=0.0,
+        w_gan=0.0,
+        w_texture=1.0,
     )
     torch.manual_seed(cfg.seed)
     before = regulariser(RenderNet(cfg))

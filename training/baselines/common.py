@@ -126,8 +126,9 @@ class BaselineConfig(PlainConfig):
     betas: tuple[float, float] = (0.5, 0.999)
     """Adam betas."""
     texture_lr_scale: float = 1.0
-    """Factor on ``lr_g`` for a neural texture's texels (DNR; Pix2Pix has none): the
-    renderer's (``RendererConfig.texture_lr_scale``) in a project."""
+    """Factor on ``lr_g`` for a neural texture's texels (DNR; Pix2Pix has none): 1, DNR's one
+    rate, by default; in a project the renderer's (``RendererConfig.texture_lr_scale``, where
+    the validation figures that chose it are, DNR's included)."""
     adam_eps: float = 1e-15
     """Adam's ``eps``: the renderer's (``training.renderer.config.RendererConfig.adam_eps``,
     where the validation figures that chose it are). Model files written before this field

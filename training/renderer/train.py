@@ -118,8 +118,10 @@ def load_model(
         raise InputError(f"not a renderer model ({MODEL_FORMAT})", path)
     # Files written before ``lr_decay_from`` existed were trained at constant rates: they read
     # as 1.0, so a fine-tune that starts from one keeps its schedule; before ``adam_eps``, at
-    # torch's 1e-8.
-    config = RendererConfig.from_dict({"lr_decay_from": 1.0, "adam_eps": 1e-8, **payload["config"]})
+    # torch's 1e-8; before ``texture_lr_scale``, at one rate.
+    config = RendererConfig.from_dict(
+        {"lr_decay_from": 1.0, "adam_eps": 1e-8, "texture_lr_scale": 1.0, **payload["config"]}
+    )
     net = RenderNet(config)
     try:
         net.load_state_dict(payload["generator"])
