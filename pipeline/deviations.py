@@ -65,8 +65,9 @@ class MethodBudget:
     """How the body around the garment gets into the image."""
 
 
-def _texture(sizes, channels) -> str:
-    return f"{len(sizes)} levels ({', '.join(str(s) for s in sizes)} texels) x {channels} ch"
+def _texture(sizes, channels, lr_scale: float = 1.0) -> str:
+    levels = f"{len(sizes)} levels ({', '.join(str(s) for s in sizes)} texels) x {channels} ch"
+    return levels if lr_scale == 1.0 else f"{levels}, learning at {lr_scale:g}x the rate"
 
 
 def _schedule(lr: float, decay_from: float) -> str:
@@ -367,7 +368,7 @@ def method_budgets(config: PipelineConfig) -> list[MethodBudget]:
         MethodBudget(
             "ours",
             count(lambda: RenderNet(r)),
-            _texture(r.texture_sizes, r.texture_channels),
+            _texture(r.texture_sizes, r.texture_channels, r.texture_lr_scale),
             r.steps,
             r.batch_size,
             _schedule(r.lr_g, r.lr_decay_from),
@@ -384,7 +385,7 @@ def method_budgets(config: PipelineConfig) -> list[MethodBudget]:
             MethodBudget(
                 kind,
                 count(lambda b=b: build_model(b)),
-                _texture(sizes, b.texture_channels) if sizes else "-",
+                _texture(sizes, b.texture_channels, b.texture_lr_scale) if sizes else "-",
                 b.steps,
                 b.batch_size,
                 _schedule(b.lr_g, b.lr_decay_from),
