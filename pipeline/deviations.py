@@ -320,8 +320,7 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
         add(
             "training",
             "one learning rate for the network and its neural texture",
-            f"the texture's texels at {r.texture_lr_scale:g}x the network's rate, for ours and "
-            "DNR",
+            f"the texture's texels at {r.texture_lr_scale:g}x the network's rate, for ours and DNR",
             "with Adam a texel moves about the rate a step: a few hundred steps at one rate "
             "left the texture near its initial noise (`texture_lr_scale`'s docstring)",
         )
