@@ -126,7 +126,10 @@ class RendererConfig(PlainConfig):
     each step whatever the size of its gradient, so at 2e-4 over quick's 600 steps a texel
     could move 0.09 at most against its initial noise of 0.01: in the README's ``/tmp/q52``
     the trained textures of ours and DNR were still that noise (a spread of 0.011 to 0.014 per
-    channel, largest texel 0.07 and 0.10). Chosen on the quick project's validation motion
+    channel, largest texel 0.07 and 0.10: ``python -c "from training.renderer.train import
+    load_model; from training.baselines.train import load_baseline; [print(float(t.detach().std((2,
+    3)).mean()), float(t.detach().abs().max())) for m in (load_model('P/renderer/renderer.pt')[1],
+    load_baseline('P/baselines/dnr/dnr.pt')) for t in m.texture.levels]"``). Chosen on the quick project's validation motion
     (``python benchmarks/renderer_validation.py P --method ours --set texture_lr_scale=S
     --seeds 0 1``, P = the README's ``/tmp/q50``; garment-region MSE on Joint2Coarse's / the
     simulated proxy at seeds 0 and 1): 1: 0.0210 / 0.0104 and 0.0216 / 0.0110; 10: 0.0196 /
