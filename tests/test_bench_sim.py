@@ -82,3 +82,40 @@ def test_floor_runs_the_setting_on_a_moved_garment(tmp_path, capsys):
     (row,) = result["rows"]
     assert 0 <= row["floor_mean_mm"] <= row["floor_p95_mm"]
     assert result["sim"]["damping"] == 0.5 and "substeps" not in result["sim"]
+
+
+def test_the_implicit_solvers_reference_halves_its_tolerance(tmp_path, capsys):
+    from app.cli import main
+    from core.mesh import save_mesh
+    from tests.sim_helpers import frustum_skirt
+
+    save_mesh(tmp_path / "skirt.obj", frustum_skirt(16, 6))
+    args = ["bench", "sim", "--garment", str(tmp_path / "skirt.obj"), "--clips", "walk",
+            "--qualities", "", "--settings", "1,4", "--frames", "3", "--transition", "0.1",
+            "--settle", "0.0", "--set", "solver=implicit", "--set", "implicit_tol=0.001",
+            "--out", str(tmp_path / "b"), "--json"]  # fmt: skip
+    assert main(args) == 0
+    (row,) = json.loads(capsys.readouterr().out)["rows"]
+    assert row["implicit_tol"] == [0.001, 0.0005] and row["reference"] == [2, 8, 20]
+    assert np.isfinite(row["mean_mm"]) and row["ms_per_frame"] > 0
+
+
+def test_hem_statistics_ignore_which_way_a_fold_goes():
+    from app.bench.sim import hem_stats_distance
+    from core.sim.sanity import hem_indices
+    from tests.sim_helpers import frustum_skirt
+
+    skirt = frustum_skirt(16, 6)
+    hem = hem_indices(skirt.vertices, skirt.faces)
+    waist = np.flatnonzero(skirt.vertices[:, 1] >= skirt.vertices[:, 1].max() - 1e-6)
+    run = np.repeat(skirt.vertices[None].astype(np.float64), 3, axis=0)
+    assert hem_stats_distance(run, run, hem, waist) == (0.0, 0.0)
+    turned = run.copy()  # the hem loop turned about the axis: every vertex moved, nothing else
+    c, s = np.cos(0.3), np.sin(0.3)
+    x, z = turned[:, hem, 0].copy(), turned[:, hem, 2].copy()
+    turned[:, hem, 0], turned[:, hem, 2] = c * x + s * z, -s * x + c * z
+    r, y = hem_stats_distance(turned, run, hem, waist)
+    assert r < 1e-6 and y < 1e-6 and distance_stats(turned, run)[1] > 10.0
+    lifted = run.copy()
+    lifted[:, hem, 1] += 0.02
+    assert hem_stats_distance(lifted, run, hem, waist)[1] == pytest.approx(20.0)

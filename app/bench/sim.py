@@ -4,7 +4,8 @@ For each clip (``dance``, ``walk``, ``jump``, ``twirl`` and CMU 01_01 retargeted
 is on this machine) and each quality (substeps x iterations), the bench simulates the garment
 (default: the ``long-skirt`` template at 50 mm, 1000 vertices, a proxy's size) and a
 reference run twice as fine in time and in iterations (2x the substeps, the solver iterations
-and the linear solver's iterations), and reports
+and the linear solver's iterations; for ``--set solver=implicit``, half the Newton tolerance
+``implicit_tol``), and reports
 the vertex distance between the two (mean and 95th percentile over vertices and frames, mm),
 wall ms per clip frame, the largest and 99th-percentile edge strain, and whether the quality is
 within the convergence targets (:data:`TARGET_MEAN_MM`, :data:`TARGET_P95_MM`). Writes
@@ -154,6 +155,25 @@ def distance_stats(positions, reference) -> tuple[float, float]:
     return float(d.mean() * 1000), float(np.percentile(d, 95) * 1000)
 
 
+def hem_stats_distance(positions, reference, hem, waist) -> tuple[float, float]:
+    """How far a run's hem is from the reference's as a whole, frame by frame: the mean over
+    frames of the absolute difference of the hem's mean radius about the waist's axis and of
+    its mean height (mm). These do not depend on which way a fold buckles, as vertex distances
+    do (``--floor``), so a run can be converged by them where it cannot be vertex by vertex.
+
+    Parameters
+    ----------
+    positions, reference : (T, V, 3) float
+    hem : (L,) int hem loop, waist : (P,) int pinned waistband vertices
+    """
+    from core.sim.sanity import hem_radius
+
+    a, b = np.asarray(positions, np.float64), np.asarray(reference, np.float64)
+    radius = np.abs(hem_radius(a, hem, waist) - hem_radius(b, hem, waist)).mean()
+    height = np.abs(a[:, hem, 1].mean(1) - b[:, hem, 1].mean(1)).mean()
+    return float(radius * 1000), float(height * 1000)
+
+
 def perturbed(garment, sigma: float, seed: int):
     """``garment`` with every vertex moved by a normal random offset of ``sigma`` metres per axis
     (a seeded generator: the same offsets every run)."""
@@ -190,6 +210,9 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     shape = BodyShape()
     garment = bench_garment(args.garment, args.resolution, shape)
+    from core.sim.sanity import hem_indices
+
+    hem = hem_indices(garment.vertices, garment.faces)
     rows, skipped = [], []
     for clip in clips:
         motion = bench_motion(clip, args.frames, args.seed, shape)
@@ -199,28 +222,40 @@ def run(args: argparse.Namespace) -> int:
             continue
         runs: dict = {}
 
-        def sim(s: int, i: int, lin: int, moved=False, clip=clip, motion=motion, runs=runs):
-            if (s, i, lin, moved) not in runs:
-                cfg = replace(base, substeps=s, iterations=i, linear_iterations=lin)
+        def sim(s: int, i: int, lin: int, tol: float, moved=False, clip=clip, motion=motion,
+                runs=runs):  # fmt: skip
+            """One run at s x i (linear ``lin``; the implicit solver's tolerance ``tol``)."""
+            if (s, i, lin, tol, moved) not in runs:
+                cfg = replace(
+                    base, substeps=s, iterations=i, linear_iterations=lin, implicit_tol=tol
+                )
                 mesh = perturbed(garment, FLOOR_PERTURBATION_M, args.seed) if moved else garment
                 with _quiet():
                     cache, report = simulate(mesh, motion, shape, cfg)
-                runs[(s, i, lin, moved)] = (cache.positions, report)
+                runs[(s, i, lin, tol, moved)] = (cache.positions, report, cache.params)
                 print(
                     f"{clip:10s} {s:2d}x{i:<2d} linear {lin:3d} {report.ms_per_frame:8.1f} ms/frame"
                     + (" (moved 10 um)" if moved else ""),
                     file=sys.stderr, flush=True,
                 )  # fmt: skip
-            return runs[(s, i, lin, moved)]
+            return runs[(s, i, lin, tol, moved)]
 
         for label, (s, i) in measured:
-            pos, report = sim(s, i, lin)
-            ref_pos, ref_report = sim(2 * s, 2 * i, 2 * lin)
+            tol = base.implicit_tol
+            pos, report, params = sim(s, i, lin, tol)
+            ref_pos, ref_report, _ = sim(2 * s, 2 * i, 2 * lin, tol / 2)
             mean_mm, p95_mm = distance_stats(pos, ref_pos)
+            waist = np.asarray(params["pinned_indices"], np.int64)
+            hem_r, hem_y = hem_stats_distance(pos, ref_pos, hem, waist)
             floor = {}
             if args.floor:
-                f_mean, f_p95 = distance_stats(sim(s, i, lin, moved=True)[0], pos)
-                floor = {"floor_mean_mm": round(f_mean, 2), "floor_p95_mm": round(f_p95, 2)}
+                moved = sim(s, i, lin, tol, moved=True)[0]
+                f_mean, f_p95 = distance_stats(moved, pos)
+                f_r, f_y = hem_stats_distance(moved, pos, hem, waist)
+                floor = {
+                    "floor_mean_mm": round(f_mean, 2), "floor_p95_mm": round(f_p95, 2),
+                    "floor_hem_radius_mm": round(f_r, 2), "floor_hem_height_mm": round(f_y, 2),
+                }  # fmt: skip
             rows.append(
                 {
                     "clip": clip,
@@ -229,9 +264,12 @@ def run(args: argparse.Namespace) -> int:
                     "iterations": i,
                     "linear_iterations": lin,
                     "reference": [2 * s, 2 * i, 2 * lin],
+                    **({"implicit_tol": [tol, tol / 2]} if base.solver == "implicit" else {}),
                     "mean_mm": round(mean_mm, 2),
                     "p95_mm": round(p95_mm, 2),
                     "within_target": mean_mm <= TARGET_MEAN_MM and p95_mm <= TARGET_P95_MM,
+                    "hem_radius_mm": round(hem_r, 2),
+                    "hem_height_mm": round(hem_y, 2),
                     "ms_per_frame": report.ms_per_frame,
                     "reference_ms_per_frame": ref_report.ms_per_frame,
                     "strain_max": round(report.strain_max, 4),
@@ -271,8 +309,9 @@ def format_table(rows: list[dict], vertices: int, frames: int) -> str:
     head = (
         f"{vertices} vertices, {frames} frames; distance to a run with 2x substeps, 2x "
         f"iterations and 2x linear iterations (target: mean <= {TARGET_MEAN_MM:g} mm, p95 <= {TARGET_P95_MM:g} mm)\n\n"
-        "| clip | quality | S x I x L | mean mm | p95 mm | ms/frame | strain max | strain p99 |\n"
-        "|---|---|---|---:|---:|---:|---:|---:|"
+        "| clip | quality | S x I x L | mean mm | p95 mm | hem radius / height mm | ms/frame "
+        "| strain max | strain p99 |\n"
+        "|---|---|---|---:|---:|---:|---:|---:|---:|"
     )
     floor = any("floor_mean_mm" in r for r in rows)
     if floor:
@@ -290,6 +329,7 @@ def format_table(rows: list[dict], vertices: int, frames: int) -> str:
         cells = [
             r["clip"], r["quality"], f"{r['substeps']}x{r['iterations']}x{r['linear_iterations']}",
             f"{r['mean_mm']:.1f}{mark}", f"{r['p95_mm']:.1f}",
+            f"{r['hem_radius_mm']:.1f} / {r['hem_height_mm']:.1f}",
         ]  # fmt: skip
         if floor:
             cells.append(f"{r.get('floor_mean_mm', float('nan')):.1f} / "

@@ -92,7 +92,11 @@ def register(subparsers) -> None:
         help="body shape, e.g. height=1.8 hip=1.1 (core.body.shape.BodyShape fields)",
     )  # fmt: skip
     p.add_argument("--fabric", default="cotton", help="fabric preset: silk, cotton, denim")
-    p.add_argument("--solver", default=None, help="style3d (default) or vbd")
+    p.add_argument(
+        "--solver",
+        default=None,
+        help="style3d (default), vbd, or implicit (Newton's method, a single surface)",
+    )
     p.add_argument(
         "--quality", default="final", help="final (16x32, default: a twirl flares), medium (8x16) "
         "or draft (2x8) substeps x iterations; --substeps/--iterations override",

@@ -71,8 +71,9 @@ QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 #: not re-chosen. 0.999 blew up the long skirt's lead-in.
 CHEBYSHEV_RHO = 0.99
 
-#: Cloth solvers of newton that :func:`core.sim.simulate.simulate` drives.
-SOLVERS = ("style3d", "vbd")
+#: Cloth solvers :func:`core.sim.simulate.simulate` drives: newton's Style3D and VBD, and ours,
+#: implicit Euler by Newton's method (:mod:`core.sim.implicit`, a single surface only).
+SOLVERS = ("style3d", "vbd", "implicit")
 
 
 def fabric(name: str) -> Fabric:
@@ -92,14 +93,25 @@ class SimConfig:
     solver: str = "style3d"
     """``style3d`` (newton's projective-dynamics solver with a PCG global step: converges to
     low strain in few iterations; the default) or ``vbd`` (vertex block descent: local
-    Gauss-Seidel, needs many more iterations before the fabric stops stretching)."""
+    Gauss-Seidel, needs many more iterations before the fabric stops stretching) or
+    ``implicit`` (ours, :mod:`core.sim.implicit`: implicit Euler solved by Newton's method with
+    a direct sparse solve, each step iterated to ``implicit_tol``; a single surface only, and
+    about ten times Style3D's cost a frame at the same steps: README "Simulation quality")."""
     substeps: int = 16
     """Solver steps per 1/30 s of motion. Clips at other frame rates get the same physical time
     step or a finer one: ``ceil(substeps * 30 / fps)`` steps per frame, at least one."""
     iterations: int = 32
     """Non-linear solver iterations per step. The defaults (16 x 32, :data:`QUALITY` ``final``)
     are the trustworthy setting (a spin flares the skirt instead of winding it up); ``medium``
-    (8 x 16) costs a quarter, ``draft`` (2 x 8) a thirtieth."""
+    (8 x 16) costs a quarter, ``draft`` (2 x 8) a thirtieth. With ``solver="implicit"``: the
+    most Newton iterations a step runs (it stops sooner at ``implicit_tol``)."""
+    implicit_order: int = 2
+    """``solver="implicit"``: 1 integrates by backward Euler (as Style3D does), 2 by BDF2
+    (second order: a swing's numerical damping falls with the step's square, not the step;
+    a step after one of another length is backward Euler)."""
+    implicit_tol: float = 1.0e-4
+    """``solver="implicit"``: a step's Newton iterations stop when the largest update of a
+    vertex is under this (metres)."""
     linear_iterations: int = 10
     """Conjugate-gradient iterations of each Style3D iteration's linear solve (newton's
     default is 10). Too few and the waist's motion does not reach the hem within a step: the
@@ -170,6 +182,8 @@ class SimConfig:
             "substeps": self.substeps >= 1,
             "iterations": self.iterations >= 1,
             "linear_iterations": self.linear_iterations >= 1,
+            "implicit_tol": self.implicit_tol > 0,
+            "implicit_order": self.implicit_order in (1, 2),
             "chebyshev_rho": self.chebyshev_rho is None or 0 <= self.chebyshev_rho < 1,
             "transition_s": self.transition_s >= 0,
             "settle_s": self.settle_s >= 0,

@@ -28,6 +28,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -50,6 +51,9 @@ from core.sim.drive import BodyDrive, body_drive
 from core.sim.pins import Pins, Seams, find_pins, find_seams
 from core.sim.sanity import hem_indices, hem_radius_ratio
 
+if TYPE_CHECKING:
+    from core.sim.implicit import ImplicitScene
+
 #: Weight of a kinematic particle in Style3D's cloth-cloth contacts (its solver row is 0; a free
 #: particle's holds its stretch stiffness and mass / dt^2, orders of magnitude more): small
 #: enough to leave those contacts without force, but not 0.
@@ -62,7 +66,11 @@ STYLE3D_VELOCITY_FACTOR = 0.998
 
 
 #: The newton solver class each :attr:`SimConfig.solver` runs, as the cache's params name it.
-SOLVER_CLASSES = {"style3d": "newton.SolverStyle3D", "vbd": "newton.SolverVBD"}
+SOLVER_CLASSES = {
+    "style3d": "newton.SolverStyle3D",
+    "vbd": "newton.SolverVBD",
+    "implicit": "core.sim.implicit.ImplicitCloth",
+}
 
 
 class _RecordedLaunches:
@@ -625,12 +633,14 @@ class Prepared:
     """A simulation set up and not yet stepped (:func:`prepare`): the scene at the rest pose and
     the body's poses and velocities at every solver step of the lead-in and the clip."""
 
-    scene: _Scene
+    scene: _Scene | ImplicitScene
     drive: BodyDrive
     poses: np.ndarray
-    """(S + 1, K, 7) float32: the capsules' transforms at every step boundary."""
+    """(S + 1, K, 7) float32: the capsules' transforms at every step boundary (the implicit
+    solver's: (S + 1, K, 2, 3), their segments)."""
     velocities: np.ndarray
-    """(S, K, 6) float32: the capsules' spatial velocities over every step."""
+    """(S, K, 6) float32: the capsules' spatial velocities over every step ((S, 0) for the
+    implicit solver, which takes them from the poses)."""
     config: SimConfig
     """The config as run: ``self_collision`` and ``chebyshev_rho`` resolved."""
     capsules: BodyCapsules
@@ -711,9 +721,18 @@ def prepare(
             f"(mean {1e3 * thickness.mean():.0f}) beyond the {1e3 * config.collision_margin:.0f} "
             f"mm margin, at friction {config.layer_friction:g}"
         )
-    scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0], thickness)
-    poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
-    velocities = scene._body_vel(poses[:-1], poses[1:], drive.dt)
+    if config.solver == "implicit":
+        from core.sim.implicit import ImplicitScene  # scipy only: no warp, no newton
+
+        scene = ImplicitScene(
+            garment, config, capsules, pins, seams, drive.transforms[0], thickness
+        )
+        poses = scene.body_poses(drive.transforms)  # every step's capsule segments at once
+        velocities = np.zeros((len(poses) - 1, 0), np.float32)  # it takes them from the poses
+    else:
+        scene = _Scene(garment, config, capsules, pins, seams, drive.transforms[0], thickness)
+        poses = scene._body_poses(drive.transforms)  # every step's capsule poses at once
+        velocities = scene._body_vel(poses[:-1], poses[1:], drive.dt)
     return Prepared(
         scene, drive, poses, velocities, config, capsules, pins, seams, edges, rest_len, notes,
         thickness,

@@ -1,0 +1,528 @@
+"""Implicit cloth steps solved by Newton's method with a direct sparse solve (``solver="implicit"``).
+
+Style3D (newton's projective dynamics) iterates with the rest shape's matrix, and near the body
+its iterations converge slowly: one quick step (16 iterations) ends 9.5 mm from the same step
+converged on the quick proxy's walk (README "Simulation quality"). Here every step minimises
+the implicit objective over the free vertices' end-of-step positions ``y``::
+
+    E(y) = |y - x~ - h^2 g|^2_M / (2 h^2) + stretch(y) + bend(y) + contact(y) + friction(y)
+
+with ``h = dt`` and ``x~ = x + dt v`` for backward Euler, or BDF2's (second order,
+``SimConfig.implicit_order``: :meth:`ImplicitCloth.step`), by Newton's method: the exact
+gradient, the Hessian made positive semi-definite term by term (the indefinite parts of
+compression, shear and the contact's curvature dropped; the body contact's own in it), one
+sparse LU solve per iteration (scipy's SuperLU on 3 x free-vertex unknowns), and a backtracking
+line search on ``E``. A step stops when the largest update is under ``SimConfig.implicit_tol``
+or after ``SimConfig.iterations`` Newton iterations.
+
+The material is Style3D's as this project configures it (:func:`core.sim.simulate`): the
+Baraff-Witkin membrane ``A (ku (|Fu| - 1)^2 + kv (|Fv| - 1)^2 + ks (Fu . Fv)^2) / 2`` on each
+triangle laid flat (``ku = kv = stretch_ke``, ``ks = stretch_ke / 2``; Style3D's shear force
+normalises ``Fu``, ``Fv``, the same to first order) and Bergou's quadratic (isometric) bending
+``kb x^T Q x / 2``. The body is the same capsules; a vertex at distance ``d`` from a capsule of
+radius ``r`` with contact radius ``R`` (``collision_margin`` plus its layers' ``thickness``) has
+the penalty ``contact_ke (r + R - d)^2 / 2`` where that is positive, and lagged Coulomb friction
+(IPC's smoothed ``mu lambda f0(|u_T|)``, its normal force ``lambda`` and direction taken at the
+step's start, the slip ``u_T`` against the capsule's own motion). Pinned vertices follow their
+bones (kinematic, out of the solve). A single surface only: no cloth-cloth contact, no seams.
+
+Everything is numpy float64 on the CPU; a step's cost is a few sparse factorisations. On the
+quick project's 989-vertex proxy at 8 steps a frame that is about 1 s a frame, ten times
+Style3D's quick setting, and its runs are no closer to runs twice as fine than Style3D's are,
+vertex by vertex: the converged cloth's folds go one way or another on a 10 um nudge (README
+"Simulation quality", ``dng bench sim --set solver=implicit --floor``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from core.errors import InputError
+
+GRAVITY = np.array([0.0, -9.81, 0.0])
+#: Slip speed (m/s) under which friction is static (IPC's smoothing of Coulomb's law).
+FRICTION_EPS_V = 1.0e-3
+#: Line search: shortest step tried, and the sufficient-decrease fraction (Armijo).
+MIN_ALPHA = 1.0 / 64.0
+ARMIJO = 1.0e-4
+
+
+@dataclass(frozen=True)
+class ClothRest:
+    """A garment's rest data for :class:`ImplicitCloth` (V vertices, T triangles).
+
+    Attributes
+    ----------
+    faces : (T, 3) int64
+    du, dv : (T, 3) float64, the derivatives of the deformation gradient's columns ``Fu``,
+        ``Fv`` with respect to each corner (``Fu = sum_i du_i x_i``)
+    area : (T,) float64 rest areas
+    mass : (V,) float64 lumped masses (kg)
+    bend : (V, V) sparse float64 Bergou's ``Q`` (times the bending stiffness)
+    """
+
+    faces: np.ndarray
+    du: np.ndarray
+    dv: np.ndarray
+    area: np.ndarray
+    mass: np.ndarray
+    bend: sp.csr_matrix
+
+
+def cloth_rest(
+    vertices: np.ndarray, faces: np.ndarray, density: float, bend_ke: float
+) -> ClothRest:
+    """Rest data of a triangle mesh, each triangle laid flat in its own plane.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, faces : (T, 3) int
+    density : kg/m^2, bend_ke : N m (the fabric's)
+    """
+    x = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    if x.ndim != 2 or x.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or not len(f):
+        raise InputError(f"cloth needs (V, 3) vertices and (T, 3) faces, got {x.shape}, {f.shape}")
+    e1, e2 = x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]
+    l1 = np.linalg.norm(e1, axis=1)
+    n = np.cross(e1, e2)
+    twice = np.linalg.norm(n, axis=1)
+    if (l1 <= 0).any() or (twice <= 1e-14).any():
+        raise InputError("cloth has a degenerate (zero-area) triangle")
+    u = e1 / l1[:, None]
+    w = np.cross(n / twice[:, None], u)
+    dm = np.stack(
+        [np.stack([l1, (e2 * u).sum(1)], 1), np.stack([np.zeros_like(l1), (e2 * w).sum(1)], 1)], 1
+    )
+    inv = np.linalg.inv(dm)  # (T, 2, 2): columns of [x1 - x0, x2 - x0] @ inv are Fu, Fv
+    du = np.stack([-inv[:, 0, 0] - inv[:, 1, 0], inv[:, 0, 0], inv[:, 1, 0]], 1)
+    dv = np.stack([-inv[:, 0, 1] - inv[:, 1, 1], inv[:, 0, 1], inv[:, 1, 1]], 1)
+    area = 0.5 * twice
+    mass = np.bincount(f.ravel(), np.repeat(density * area / 3.0, 3), minlength=len(x))
+    return ClothRest(f, du, dv, area, mass, bend_ke * bending_matrix(x, f))
+
+
+def bending_matrix(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """Bergou et al.'s isometric bending form ``Q`` (V, V): ``E = x^T Q x / 2`` per coordinate.
+
+    Per interior edge (x0, x1) between triangles with opposite vertices x2 and x3,
+    ``Q += 3 / (A0 + A1) K K^T`` with ``K = (c03 + c04, c01 + c02, -c01 - c03, -c02 - c04)``
+    on (x0, x1, x2, x3), ``c0j`` the cotangents of the angles the edge makes with the others
+    (zero on a flat rest stencil: ``K`` annihilates every affine field there).
+    """
+    x = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    half = np.concatenate([f[:, [0, 1, 2]], f[:, [1, 2, 0]], f[:, [2, 0, 1]]])  # (a, b, opposite)
+    key = np.minimum(half[:, 0], half[:, 1]) * len(x) + np.maximum(half[:, 0], half[:, 1])
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    first = np.flatnonzero((k[1:] == k[:-1]) & np.r_[True, k[1:-1] != k[:-2]])
+    h0, h1 = half[order[first]], half[order[first + 1]]
+    x0, x1, x2, x3 = h0[:, 0], h0[:, 1], h0[:, 2], h1[:, 2]
+    p0, p1, p2, p3 = x[x0], x[x1], x[x2], x[x3]
+
+    def cot(a, b):
+        return (a * b).sum(1) / np.maximum(np.linalg.norm(np.cross(a, b), axis=1), 1e-14)
+
+    e0 = p1 - p0
+    c01, c02 = cot(e0, p2 - p0), cot(e0, p3 - p0)
+    c03, c04 = cot(-e0, p2 - p1), cot(-e0, p3 - p1)
+    kk = np.stack([c03 + c04, c01 + c02, -c01 - c03, -c02 - c04], 1)
+    a0 = 0.5 * np.linalg.norm(np.cross(e0, p2 - p0), axis=1)
+    a1 = 0.5 * np.linalg.norm(np.cross(e0, p3 - p0), axis=1)
+    q = 3.0 / (a0 + a1)[:, None, None] * kk[:, :, None] * kk[:, None, :]
+    idx = np.stack([x0, x1, x2, x3], 1)
+    rows = np.repeat(idx[:, :, None], 4, 2).ravel()
+    cols = np.repeat(idx[:, None, :], 4, 1).ravel()
+    return sp.csr_matrix((q.ravel(), (rows, cols)), shape=(len(x), len(x)))
+
+
+def closest_on_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """Points ``p`` against segments ``a -> b`` (all (..., 3), broadcast together).
+
+    Returns
+    -------
+    d : (...) distances to the segments
+    n : (..., 3) unit directions from the closest points to ``p``
+    s : (...) the closest points' positions along the segments, in [0, 1]
+    """
+    ab = b - a
+    s = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-20), 0.0, 1.0)
+    r = p - (a + s[..., None] * ab)
+    d = np.sqrt((r * r).sum(-1))
+    return d, r / np.maximum(d, 1e-12)[..., None], s
+
+
+def segment_contacts(y: np.ndarray, ends: np.ndarray):
+    """Every point against every capsule axis: ``y`` (V, 3), ``ends`` (K, 2, 3) ->
+    :func:`closest_on_segments` of shapes (V, K), (V, K, 3), (V, K)."""
+    return closest_on_segments(y[:, None], ends[None, :, 0], ends[None, :, 1])
+
+
+#: Pairs (vertex, capsule) whose gap exceeds this (metres) at a step's start and end positions
+#: are left out of its contact terms (checked again at the step's solution).
+CONTACT_PAD = 0.03
+
+
+def _f0(u: np.ndarray, eps: float) -> np.ndarray:
+    """IPC's smoothed slip magnitude (C1, equal to u from ``eps`` on)."""
+    small = -(u**3) / (3 * eps**2) + u * u / eps + eps / 3
+    return np.where(u < eps, small, u)
+
+
+def _f1_over_u(u: np.ndarray, eps: float) -> np.ndarray:
+    """f0'(u) / u, positive (the friction's Hessian weight along the slip)."""
+    return np.where(u < eps, 2.0 / eps - u / eps**2, 1.0 / np.maximum(u, 1e-30))
+
+
+class ImplicitCloth:
+    """One garment's implicit Euler steps (see the module docstring).
+
+    Parameters
+    ----------
+    rest : ClothRest
+    stretch_ke : N/m, ``ku = kv``; shear ``ks = stretch_ke / 2`` (as Style3D is set up here)
+    contact_ke : N/m body-contact stiffness
+    radius : (V,) float metres each vertex keeps from a capsule's surface
+    friction : (K,) float, each capsule's Coulomb coefficient
+    capsule_radii : (K,) float
+    pinned : (P,) int kinematic vertices
+    tol : metres, the Newton update under which a step counts converged
+    iterations : the most Newton iterations a step runs
+    """
+
+    def __init__(
+        self, rest: ClothRest, stretch_ke: float, contact_ke: float, radius: np.ndarray,
+        friction: np.ndarray, capsule_radii: np.ndarray, pinned: np.ndarray, tol: float,
+        iterations: int,
+    ):  # fmt: skip
+        self.rest = rest
+        self.ku = self.kv = float(stretch_ke)
+        self.ks = 0.5 * float(stretch_ke)
+        self.contact_ke = float(contact_ke)
+        self.reach = (
+            np.asarray(radius, np.float64)[:, None] + np.asarray(capsule_radii, np.float64)[None]
+        )
+        self.mu = np.asarray(friction, np.float64)
+        self.tol, self.iterations = float(tol), int(iterations)
+        v = len(rest.mass)
+        free = np.ones(v, bool)
+        free[np.asarray(pinned, np.int64)] = False
+        self.free = free
+        self.newton_iterations: list[int] = []
+        self.bend_diag = np.asarray(rest.bend.diagonal())
+        self._pattern(v)
+
+    # -- the matrix's sparsity, fixed: every value lands by one bincount -----------------------
+    # Bending's Hessian (``kb Q``, constant) enters the matrix by its diagonal only, its gradient
+    # in full: it is small against the inertia's ``M / dt^2``, and its off-diagonal terms couple
+    # two rings of neighbours, which tripled a factorisation's cost on the quick proxy (25 ms
+    # against 8). Without its diagonal the line search backtracked twice as often.
+    def _pattern(self, v: int) -> None:
+        f = self.rest.faces
+        vi = np.repeat(f[:, :, None], 3, 2)  # (T, 3, 3) row vertex
+        vj = np.repeat(f[:, None, :], 3, 1)
+        pairs_r = np.concatenate([vi.ravel(), np.arange(v)])
+        pairs_c = np.concatenate([vj.ravel(), np.arange(v)])
+        block = sp.csr_matrix((np.ones(len(pairs_r)), (pairs_r, pairs_c)), shape=(v, v))
+        block.sum_duplicates()
+        block.sort_indices()
+        keep = self.free
+        fidx = np.cumsum(keep) - 1  # free index of each vertex
+        block = block[keep][:, keep].tocsr()
+        block.sort_indices()
+        nb = block.nnz
+        # scalar CSR over 3 x free unknowns, built from the block pattern
+        brow = np.repeat(np.arange(block.shape[0]), np.diff(block.indptr))
+        bcol = block.indices
+        rows = (3 * brow[:, None, None] + np.arange(3)[None, :, None]).repeat(3, 2)
+        cols = (3 * bcol[:, None, None] + np.arange(3)[None, None, :]).repeat(3, 1)
+        m = sp.csr_matrix(
+            (np.arange(1, 9 * nb + 1, dtype=np.float64), (rows.ravel(), cols.ravel())),
+            shape=(3 * block.shape[0],) * 2,
+        )
+        m.sort_indices()
+        slot_of_block_entry = np.empty(9 * nb, np.int64)
+        slot_of_block_entry[m.data.astype(np.int64) - 1] = np.arange(m.nnz)
+        self._indptr, self._indices, self._nnz = m.indptr, m.indices, m.nnz
+        self._n = 3 * block.shape[0]
+
+        keys = np.repeat(np.arange(block.shape[0]), np.diff(block.indptr)) * len(keep)
+        keys = keys + block.indices  # sorted: CSR rows in order, columns sorted within them
+
+        def block_slot(r: np.ndarray, c: np.ndarray) -> np.ndarray:
+            """Index of block (r, c) (vertex ids) in ``block``; -1 where r or c is pinned."""
+            ok = keep[r] & keep[c]
+            out = np.full(r.shape, -1, np.int64)
+            out[ok] = np.searchsorted(keys, fidx[r[ok]] * len(keep) + fidx[c[ok]])
+            return out
+
+        def scalar_slots(bslot: np.ndarray) -> np.ndarray:
+            """(..., ) block slots -> (..., 3, 3) scalar slots (the dummy slot for -1)."""
+            base = np.where(bslot < 0, 0, bslot)[..., None, None] * 9 + np.arange(9).reshape(3, 3)
+            out = slot_of_block_entry[base]
+            return np.where(bslot[..., None, None] < 0, self._nnz, out)
+
+        self._tri_slots = scalar_slots(block_slot(vi, vj))  # (T, 3, 3, 3, 3)
+        diag = np.arange(v)
+        self._diag_slots = scalar_slots(block_slot(diag, diag))  # (V, 3, 3)
+
+    # -- the objective's terms ------------------------------------------------------------------
+    def _membrane(self, y: np.ndarray, hessian: bool):
+        r = self.rest
+        p = y[r.faces]  # (T, 3, 3)
+        fu = np.einsum("ti,tic->tc", r.du, p)
+        fv = np.einsum("ti,tic->tc", r.dv, p)
+        lu, lv = np.linalg.norm(fu, axis=1), np.linalg.norm(fv, axis=1)
+        uu, vv = fu / np.maximum(lu, 1e-12)[:, None], fv / np.maximum(lv, 1e-12)[:, None]
+        c = (fu * fv).sum(1)
+        a = r.area
+        energy = (
+            0.5 * (a * (self.ku * (lu - 1) ** 2 + self.kv * (lv - 1) ** 2 + self.ks * c * c)).sum()
+        )
+        gu = a[:, None] * (self.ku * (lu - 1)[:, None] * uu + self.ks * c[:, None] * fv)  # dE/dFu
+        gv = a[:, None] * (self.kv * (lv - 1)[:, None] * vv + self.ks * c[:, None] * fu)
+        grad = r.du[:, :, None] * gu[:, None] + r.dv[:, :, None] * gv[:, None]  # (T, 3, 3)
+        if not hessian:
+            return energy, grad, None
+        eye = np.eye(3)
+        su = np.clip(1.0 - 1.0 / np.maximum(lu, 1e-12), 0.0, None)  # compression's part dropped
+        sv = np.clip(1.0 - 1.0 / np.maximum(lv, 1e-12), 0.0, None)
+        huu = self.ku * (
+            uu[:, :, None] * uu[:, None] + su[:, None, None] * (eye - uu[:, :, None] * uu[:, None])
+        )
+        hvv = self.kv * (
+            vv[:, :, None] * vv[:, None] + sv[:, None, None] * (eye - vv[:, :, None] * vv[:, None])
+        )
+        # shear, Gauss-Newton: ks w w^T with w = (Fv, Fu)
+        huu = huu + self.ks * fv[:, :, None] * fv[:, None]
+        hvv = hvv + self.ks * fu[:, :, None] * fu[:, None]
+        huv = self.ks * fv[:, :, None] * fu[:, None]
+        a3 = a[:, None, None]
+        du, dv = r.du, r.dv
+        h = (
+            np.einsum("ti,tj,tab->tijab", du, du, a3 * huu)
+            + np.einsum("ti,tj,tab->tijab", du, dv, a3 * huv)
+            + np.einsum("ti,tj,tba->tijab", dv, du, a3 * huv)
+            + np.einsum("ti,tj,tab->tijab", dv, dv, a3 * hvv)
+        )  # (T, corner i, corner j, 3, 3)
+        return energy, grad, h
+
+    def _contact(self, y: np.ndarray, ends: np.ndarray, pairs, hessian: bool):
+        """Penalty on the candidate ``pairs`` (vertex (P,), capsule (P,), reach (P,))."""
+        vi, ki, reach = pairs
+        d, n, _ = closest_on_segments(y[vi], ends[ki, 0], ends[ki, 1])
+        pen = np.clip(reach - d, 0.0, None)  # (P,)
+        energy = 0.5 * self.contact_ke * (pen * pen).sum()
+        grad = np.zeros_like(y)
+        np.add.at(grad, vi, -self.contact_ke * pen[:, None] * n)
+        h = None
+        if hessian:
+            h = np.zeros((len(y), 3, 3))
+            touch = pen > 0
+            np.add.at(h, vi[touch], self.contact_ke * n[touch, :, None] * n[touch, None, :])
+        return energy, grad, h
+
+    def _pairs(self, points: list[np.ndarray], ends: list[np.ndarray], pad: float):
+        """(vertex, capsule, reach) of every pair within ``pad`` of touching at any of the
+        given positions (V, 3) against any of the given segments (K, 2, 3)."""
+        near = np.zeros(self.reach.shape, bool)
+        for p in points:
+            for e in ends:
+                near |= segment_contacts(p, e)[0] < self.reach + pad
+        vi, ki = np.nonzero(near)
+        return vi, ki, self.reach[vi, ki]
+
+    def _friction(self, y: np.ndarray, lag, hessian: bool):
+        """Lagged friction: ``lag`` = (vertex (P,), weight ``mu lambda`` (P,), tangent
+        projector (P, 3, 3), the start positions (V, 3), the body's motion at the contact over
+        the step (P, 3), eps (m)), or None."""
+        if lag is None:
+            return 0.0, 0.0, None
+        vi, w, proj, x0, body, eps = lag
+        slip = np.einsum("pab,pb->pa", proj, y[vi] - x0[vi] - body)
+        u = np.sqrt((slip * slip).sum(-1))
+        energy = (w * _f0(u, eps)).sum()
+        k = w * _f1_over_u(u, eps)
+        grad = np.zeros_like(y)
+        np.add.at(grad, vi, k[:, None] * slip)
+        h = None
+        if hessian:
+            h = np.zeros((len(y), 3, 3))
+            np.add.at(h, vi, k[:, None, None] * proj)
+        return energy, grad, h
+
+    def _objective(self, y, target, inv_dt2, ends, pairs, lag, hessian: bool):
+        m = self.rest.mass
+        dy = y - target
+        e_in = 0.5 * inv_dt2 * (m[:, None] * dy * dy).sum()
+        e_m, g_tri, h_tri = self._membrane(y, hessian)
+        by = self.rest.bend @ y
+        e_b = 0.5 * (y * by).sum()
+        e_c, g_c, h_c = self._contact(y, ends, pairs, hessian)
+        e_f, g_f, h_f = self._friction(y, lag, hessian)
+        energy = e_in + e_m + e_b + e_c + e_f
+        grad = inv_dt2 * m[:, None] * dy + by + g_c + g_f
+        np.add.at(grad, self.rest.faces.ravel(), g_tri.reshape(-1, 3))
+        if not hessian:
+            return energy, grad, None
+        diag = (inv_dt2 * m + self.bend_diag)[:, None, None] * np.eye(3) + h_c
+        if h_f is not None:
+            diag = diag + h_f
+        data = np.bincount(self._tri_slots.ravel(), h_tri.ravel(), minlength=self._nnz + 1)
+        data += np.bincount(self._diag_slots.ravel(), diag.ravel(), minlength=self._nnz + 1)
+        matrix = sp.csc_matrix(
+            (data[: self._nnz], self._indices, self._indptr), shape=(self._n, self._n)
+        )
+        return energy, grad, matrix
+
+    def _friction_lag(self, x: np.ndarray, ends0: np.ndarray, ends1: np.ndarray, dt: float):
+        """The friction's lagged terms (:meth:`_friction`) from the contacts at the step's
+        start, or None without any."""
+        d, n, s = segment_contacts(x, ends0)
+        lam = self.contact_ke * np.clip(self.reach - d, 0.0, None) * self.mu[None]
+        vi, ki = np.nonzero(lam > 0)
+        if not len(vi):
+            return None
+        n, s = n[vi, ki], s[vi, ki]
+        proj = np.eye(3) - n[:, :, None] * n[:, None, :]
+        move = ends1[ki] - ends0[ki]  # (P, 2, 3): the contact point moves with the segment
+        body = (1 - s)[:, None] * move[:, 0] + s[:, None] * move[:, 1]
+        return vi, lam[vi, ki], proj, x, body, FRICTION_EPS_V * dt
+
+    def step(self, x: np.ndarray, v: np.ndarray, pinned_to: np.ndarray, ends0: np.ndarray,
+             ends1: np.ndarray, dt: float, before=None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """One implicit step: backward Euler, or BDF2 given the step before.
+
+        Parameters
+        ----------
+        x, v : (V, 3) float positions and velocities at the step's start
+        pinned_to : (P, 3) float the pinned vertices' positions at its end
+        ends0, ends1 : (K, 2, 3) float the capsules' segments at its start and end
+        dt : seconds
+        before : (x, v) (V, 3) float at the start of the step before, as long as this one, for
+            BDF2 (second order: ``y = x~ + h^2 a(y)`` with ``h = 2 dt / 3`` and
+            ``x~ = 4/3 x - 1/3 x' + h (4/3 v - 1/3 v')``); None: backward Euler (first order,
+            whose numerical damping of a swing grows with the step)
+
+        Returns
+        -------
+        (V, 3) float64 positions and velocities at the step's end
+        """
+        x = np.asarray(x, np.float64)
+        v = np.asarray(v, np.float64)
+        if before is None:
+            h, base = dt, x + dt * v
+        else:
+            xb, vb = (np.asarray(a, np.float64) for a in before)
+            h = 2.0 * dt / 3.0
+            base = (4 * x - xb) / 3 + h * (4 * v - vb) / 3
+        target = base + h * h * GRAVITY
+        y = x + dt * v
+        y[~self.free] = pinned_to
+        inv_dt2 = 1.0 / (h * h)
+        lag = self._friction_lag(x, ends0, ends1, dt)
+        pairs = self._pairs([x, y], [ends0, ends1], CONTACT_PAD)
+        free = self.free
+        used, k = self.iterations, 0
+        while k < self.iterations:
+            k += 1
+            energy, grad, matrix = self._objective(y, target, inv_dt2, ends1, pairs, lag, True)
+            g = grad[free].ravel()
+            step = -sla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                             options={"SymmetricMode": True}).solve(g)  # fmt: skip
+            p = np.zeros_like(y)
+            p[free] = step.reshape(-1, 3)
+            slope = float(g @ step)
+            alpha = 1.0
+            while alpha >= MIN_ALPHA:
+                trial = y + alpha * p
+                e_new = self._objective(trial, target, inv_dt2, ends1, pairs, lag, False)[0]
+                if e_new <= energy + ARMIJO * alpha * slope:
+                    break
+                alpha *= 0.5
+            y = y + alpha * p
+            if alpha * np.abs(p).max() < self.tol:
+                missed = self._pairs([y], [ends1], 0.0)
+                known = set(zip(pairs[0].tolist(), pairs[1].tolist()))
+                new = [i for i, vk in enumerate(zip(*missed[:2])) if vk not in known]
+                if not new:  # no contact left out: converged
+                    used = k
+                    break
+                pairs = tuple(np.concatenate([a, b[new]]) for a, b in zip(pairs, missed))
+        self.newton_iterations.append(used)
+        if before is None:
+            return y, (y - x) / dt
+        return y, (3 * y - 4 * x + before[0]) / (2 * dt)
+
+
+class ImplicitScene:
+    """The implicit solver behind :func:`core.sim.simulate.simulate`'s scene interface
+    (``step``, ``positions``, ``velocities``, ``snapshot``, ``restore``), for a single surface.
+
+    ``InputError`` for a garment that needs cloth-cloth contact or seams (several pieces)."""
+
+    device = "cpu"
+
+    def __init__(self, garment, config, capsules, pins, seams, m0: np.ndarray, thickness=None):
+        from core.body.colliders import is_arm, pose_capsules
+
+        if config.self_collision or len(seams.indices):
+            raise InputError(
+                "the implicit solver simulates a single surface (a proxy); this garment has "
+                "several pieces (layers or sewn parts): simulate it with --solver style3d"
+            )
+        fab = config.material
+        friction = config.layer_friction if thickness is not None else fab.friction
+        self._pose = pose_capsules
+        self.capsules = capsules
+        self.config = config
+        self.pins = pins
+        radius = np.full(garment.num_vertices, config.collision_margin)
+        if thickness is not None:
+            radius = radius + np.asarray(thickness, np.float64)
+        rest = cloth_rest(garment.vertices, garment.faces, fab.density, fab.bend_ke)
+        mu = np.array([0.0 if is_arm(name) else friction for name in capsules.names])
+        self.cloth = ImplicitCloth(
+            rest, fab.stretch_ke, config.contact_ke, radius, mu, capsules.radii,
+            pins.indices, config.implicit_tol, config.iterations,
+        )  # fmt: skip
+        self.x = garment.vertices.astype(np.float64)
+        self.v = np.zeros_like(self.x)
+        self.order = config.implicit_order
+        self.before = None  # (x, v, dt) at the previous step's start, for BDF2
+
+    def body_poses(self, transforms: np.ndarray) -> np.ndarray:
+        """The capsules' segments for skinning transforms (..., J, 4, 4): (..., K, 2, 3)."""
+        return self._pose(self.capsules, np.asarray(transforms))
+
+    def step(self, ma: np.ndarray, mb: np.ndarray, dt: float, poses: tuple | None = None) -> None:
+        """One step with the body moving from transforms ``ma`` to ``mb`` (J, 4, 4);
+        ``poses``: their segments (:meth:`body_poses`) when already computed."""
+        if poses is None:
+            ends0, ends1 = self.body_poses(ma[None])[0], self.body_poses(mb[None])[0]
+        else:
+            ends0, ends1 = poses[0], poses[1]
+        pinned_to = self.pins.targets(mb).astype(np.float64)
+        b = self.before
+        history = b[:2] if self.order == 2 and b is not None and b[2] == dt else None
+        self.before = (self.x, self.v, dt)
+        self.x, self.v = self.cloth.step(self.x, self.v, pinned_to, ends0, ends1, dt, history)
+        if self.config.damping > 0:
+            self.v *= np.exp(-self.config.damping * dt)
+
+    def positions(self) -> np.ndarray:
+        return self.x.astype(np.float32)
+
+    def velocities(self) -> np.ndarray:
+        return self.v.astype(np.float32)
+
+    def snapshot(self) -> tuple:
+        return self.x.copy(), self.v.copy(), self.before
+
+    def restore(self, snap: tuple) -> None:
+        self.x, self.v, self.before = snap[0].copy(), snap[1].copy(), snap[2]

@@ -1,0 +1,137 @@
+"""The implicit Euler solver by Newton's method (``solver="implicit"``, scipy only: no warp)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from core.body.shape import BodyShape
+from core.errors import InputError
+from core.mesh import unique_edges
+from core.sim.config import SimConfig
+from core.sim.implicit import ImplicitCloth, bending_matrix, cloth_rest, segment_contacts
+from core.sim.simulate import edge_strain, simulate
+from tests.sim_helpers import frustum_skirt, spin_motion, two_layer_skirt
+
+FAST = SimConfig(solver="implicit", substeps=2, iterations=8, transition_s=0.2, settle_s=0.2)
+
+
+def _sheet(n: int = 8, size: float = 0.5):
+    """A flat square n x n grid in the y = 1 plane: (n^2, 3) vertices, faces."""
+    xs, zs = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n))
+    v = np.stack([xs.ravel(), np.ones(n * n), zs.ravel()], 1)
+    i = np.arange(n * n).reshape(n, n)
+    a = np.stack([i[:-1, :-1].ravel(), i[1:, :-1].ravel(), i[:-1, 1:].ravel()], 1)
+    b = np.stack([i[1:, 1:].ravel(), i[:-1, 1:].ravel(), i[1:, :-1].ravel()], 1)
+    return v, np.concatenate([a, b]), i
+
+
+def test_bending_form_is_symmetric_and_leaves_a_flat_sheet_alone():
+    v, f, _ = _sheet()
+    q = bending_matrix(v, f)
+    assert abs(q - q.T).max() < 1e-9
+    # Zero on any affine field of a flat rest sheet; positive on a bent one.
+    affine = v @ np.array([[0.3, -1.0, 2.0], [0.5, 0.2, 0.1], [1.0, 0.0, -0.4]])
+    assert np.abs(q @ affine).max() < 1e-8
+    bent = v.copy()
+    bent[:, 1] += 2.0 * (v[:, 0] - 0.25) ** 2
+    assert (bent * (q @ bent)).sum() > 1.0
+
+
+def test_gradient_and_hessian_match_finite_differences():
+    v, f, i = _sheet(4)
+    rest = cloth_rest(v, f, 0.15, 0.0)  # the matrix keeps only bending's diagonal: none here
+    ends = np.array([[[0.1, 1.12, 0.1], [0.4, 1.12, 0.1]]])
+    cloth = ImplicitCloth(rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1), np.array([0.15]),
+                          i[0], 1e-5, 8)  # fmt: skip
+    cloth.ks = 0.0  # shear's indefinite part is dropped from the Hessian: compare without it
+    rng = np.random.default_rng(0)
+    y = 1.2 * v + 0.01 * rng.standard_normal(v.shape)  # stretched (no compression), one contact
+    target = v.copy()
+    far = ends + 10.0  # the contact's Hessian drops its negative (curvature) part: check apart
+    near, apart = cloth._pairs([y], [ends], 1.0), cloth._pairs([y], [far], 0.0)
+    e, g, _ = cloth._objective(y, target, 100.0, ends, near, None, True)
+    h = cloth._objective(y, target, 100.0, far, apart, None, True)[2]
+    assert (segment_contacts(y, ends)[0] < 0.154).any()
+    step = 1e-6
+    num_g = np.zeros_like(y)
+    num_h = np.zeros((h.shape[0], h.shape[0]))
+    free = np.flatnonzero(cloth.free)
+    col = 0
+    for a in range(len(y)):
+        for c in range(3):
+            yp, ym = y.copy(), y.copy()
+            yp[a, c] += step
+            ym[a, c] -= step
+            ep = cloth._objective(yp, target, 100.0, ends, near, None, False)[0]
+            em = cloth._objective(ym, target, 100.0, ends, near, None, False)[0]
+            num_g[a, c] = (ep - em) / (2 * step)
+            if a in free:
+                gp = cloth._objective(yp, target, 100.0, far, apart, None, False)[1]
+                gm = cloth._objective(ym, target, 100.0, far, apart, None, False)[1]
+                num_h[:, col] = ((gp - gm) / (2 * step))[cloth.free].ravel()
+                col += 1
+    assert np.abs(num_g - g).max() < 1e-5 * np.abs(g).max()
+    assert np.abs(num_h - h.toarray()).max() < 1e-4 * np.abs(num_h).max()
+
+
+def test_a_pinned_sheet_hangs_on_a_capsule_without_stretching_or_passing_through():
+    v, f, i = _sheet(10, 0.6)
+    rest = cloth_rest(v, f, 0.15, 2e-5)
+    ends = np.array([[[0.1, 0.8, 0.3], [0.5, 0.8, 0.3]]])  # a bar 0.2 m under the sheet
+    cloth = ImplicitCloth(rest, 5e3, 1e4, np.full(len(v), 0.004), np.array([0.3]),
+                          np.array([0.05]), i[0], 1e-5, 16)  # fmt: skip
+    x, vel = v.copy(), np.zeros_like(v)
+    for _ in range(120):  # 0.5 s at 240 steps a second
+        x, vel = cloth.step(x, vel, v[i[0]], ends, ends, 1 / 240)
+    assert np.allclose(x[i[0]], v[i[0]])  # pinned
+    e = unique_edges(f)
+    strain = edge_strain(x[None], e, np.linalg.norm(v[e[:, 1]] - v[e[:, 0]], axis=1))
+    assert strain.max() < 0.05
+    assert x[:, 1].min() < 0.7  # draped down past the bar
+    assert segment_contacts(x, ends)[0].min() > 0.05 + 0.004 - 0.001  # not through it
+    assert max(cloth.newton_iterations) <= 16
+
+
+def test_simulate_with_the_implicit_solver():
+    skirt = frustum_skirt(24, 12)
+    cache, report = simulate(skirt, spin_motion(4), BodyShape(), FAST)
+    assert cache.params["solver"] == "core.sim.implicit.ImplicitCloth"
+    assert cache.positions.shape == (4, skirt.num_vertices, 3) and report.finite
+    assert report.strain_max < report.strain_limit
+    assert report.penetration_mean_mm < 2.0
+    assert cache.positions[0, :, 1].min() < skirt.vertices[:, 1].min()  # the hem sank
+
+
+def test_implicit_solver_refuses_a_layered_garment_and_a_bad_tolerance():
+    with pytest.raises(InputError, match="single surface"):
+        simulate(two_layer_skirt(), spin_motion(2), BodyShape(), FAST)
+    with pytest.raises(InputError, match="implicit_tol"):
+        replace(FAST, implicit_tol=0.0)
+
+
+def test_bdf2_converges_with_the_step_where_backward_euler_damps():
+    """A sheet pinned along one edge swings down from level for 0.5 s, at steps of 1/60, 1/120
+    and 1/240 s: BDF2's answers close in faster as the step halves (second order)."""
+    v, f, i = _sheet(6, 0.4)
+    rest = cloth_rest(v, f, 0.15, 2e-5)
+    far = np.array([[[10.0, 10.0, 10.0], [11.0, 10.0, 10.0]]])
+
+    def swing(dt: float, order: int) -> np.ndarray:
+        cloth = ImplicitCloth(rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1),
+                              np.array([0.05]), i[0], 1e-7, 30)  # fmt: skip
+        x, vel, before = v.copy(), np.zeros_like(v), None
+        for _ in range(round(0.5 / dt)):
+            x_new, v_new = cloth.step(x, vel, v[i[0]], far, far, dt, before if order == 2 else None)
+            before, x, vel = (x, vel), x_new, v_new
+        return x
+
+    def gaps(order: int) -> tuple[float, float]:
+        a, b, c = (swing(dt, order) for dt in (1 / 60, 1 / 120, 1 / 240))
+        return np.linalg.norm(a - b, axis=1).mean(), np.linalg.norm(b - c, axis=1).mean()
+
+    euler, bdf2 = gaps(1), gaps(2)
+    assert bdf2[1] < 0.4 * euler[1]
+    assert bdf2[0] / bdf2[1] > 2.2 > euler[0] / euler[1]
