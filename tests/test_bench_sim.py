@@ -45,6 +45,7 @@ def test_tiny_bench_writes_table_json_and_plot(tmp_path, capsys):
     result = json.loads((tmp_path / "b" / "sim.json").read_text())
     (row,) = result["rows"]
     assert row["reference"] == [2, 4, 20] and row["mean_mm"] <= row["p95_mm"]
+    assert 0 <= row["frame0_mean_mm"] and 0 <= row["hem_radius_mm"] and 0 <= row["hem_height_mm"]
     assert row["within_target"] == (row["mean_mm"] <= 10 and row["p95_mm"] <= 25)
     assert (tmp_path / "b" / "sim.png").stat().st_size > 0
     assert format_table(result["rows"], 96, 3).count("\n") == 4
@@ -81,6 +82,7 @@ def test_floor_runs_the_setting_on_a_moved_garment(tmp_path, capsys):
     result = json.loads((tmp_path / "b" / "sim.json").read_text())
     (row,) = result["rows"]
     assert 0 <= row["floor_mean_mm"] <= row["floor_p95_mm"]
+    assert row["floor_frame0_mean_mm"] >= 0 and row["floor_hem_radius_mm"] >= 0
     assert result["sim"]["damping"] == 0.5 and "substeps" not in result["sim"]
 
 

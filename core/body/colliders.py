@@ -243,6 +243,22 @@ def simulation_colliders(
     return posed_garment_capsules(shape, rotations, roots, garment_top, arm_colliders)
 
 
+def closest_on_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """Points ``p`` against segments ``a -> b`` (all (..., 3), broadcast together).
+
+    Returns
+    -------
+    d : (...) distances to the segments
+    n : (..., 3) unit directions from the closest points to ``p``
+    s : (...) the closest points' positions along the segments, in [0, 1]
+    """
+    ab = b - a
+    s = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-20), 0.0, 1.0)
+    r = p - (a + s[..., None] * ab)
+    d = np.sqrt((r * r).sum(-1))
+    return d, r / np.maximum(d, 1e-12)[..., None], s
+
+
 def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Signed distance from points to the union of capsules (negative inside).
 
@@ -261,11 +277,7 @@ def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarra
     r = np.asarray(radii, np.float64)
     out = np.full(len(p), np.inf)
     for k in range(len(e)):  # one capsule at a time: (N, 3) arrays, no (N, K, 3) temporaries
-        a, ab = e[k, 0], e[k, 1] - e[k, 0]
-        q = p - a
-        t = np.clip(q @ ab / max(float(ab @ ab), 1e-18), 0.0, 1.0)
-        q -= t[:, None] * ab
-        np.minimum(out, np.sqrt(np.einsum("nc,nc->n", q, q)) - r[k], out=out)
+        np.minimum(out, closest_on_segments(p, e[k, 0], e[k, 1])[0] - r[k], out=out)
     return out.astype(np.float32)
 
 

@@ -41,6 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from core.body.colliders import closest_on_segments
 from core.errors import InputError
 
 GRAVITY = np.array([0.0, -9.81, 0.0])
@@ -139,22 +140,6 @@ def bending_matrix(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     rows = np.repeat(idx[:, :, None], 4, 2).ravel()
     cols = np.repeat(idx[:, None, :], 4, 1).ravel()
     return sp.csr_matrix((q.ravel(), (rows, cols)), shape=(len(x), len(x)))
-
-
-def closest_on_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray):
-    """Points ``p`` against segments ``a -> b`` (all (..., 3), broadcast together).
-
-    Returns
-    -------
-    d : (...) distances to the segments
-    n : (..., 3) unit directions from the closest points to ``p``
-    s : (...) the closest points' positions along the segments, in [0, 1]
-    """
-    ab = b - a
-    s = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-20), 0.0, 1.0)
-    r = p - (a + s[..., None] * ab)
-    d = np.sqrt((r * r).sum(-1))
-    return d, r / np.maximum(d, 1e-12)[..., None], s
 
 
 def segment_contacts(y: np.ndarray, ends: np.ndarray):

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from core.body.colliders import closest_on_segments
 from core.errors import InputError
 from core.mesh import boundary_loops, vertex_normals
 from core.proxy.metrics import barycentric, point_to_mesh
@@ -61,10 +62,7 @@ class Pins:
 
 def _segment_distance(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(N, 3) points to (K,) segments a->b (K, 3): (N, K) distances."""
-    d = b - a
-    dd = np.maximum((d * d).sum(-1), 1e-20)
-    s = np.clip(((x[:, None] - a[None]) * d[None]).sum(-1) / dd[None], 0.0, 1.0)
-    return np.linalg.norm(x[:, None] - (a[None] + s[..., None] * d[None]), axis=-1)
+    return closest_on_segments(x[:, None], a[None], b[None])[0]
 
 
 def find_pins(

@@ -36,6 +36,7 @@ from core.body.colliders import (
     BodyCapsules,
     arms_collide,
     capsule_distance,
+    closest_on_segments,
     garment_capsules,
     is_arm,
     penetration_depths,
@@ -235,9 +236,7 @@ def mesh_penetration_depths(
 
 def _capsule_gaps(point: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Signed distance from one point (3,) to each capsule (K, 2, 3): (K,)."""
-    a, d = ends[:, 0], ends[:, 1] - ends[:, 0]
-    s = np.clip(((point - a) * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-20), 0.0, 1.0)
-    return np.linalg.norm(point - (a + s[:, None] * d), axis=1) - radii
+    return closest_on_segments(point, ends[:, 0], ends[:, 1])[0] - radii
 
 
 def _capsule_frames(ends: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
