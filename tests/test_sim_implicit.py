@@ -135,3 +135,18 @@ def test_bdf2_converges_with_the_step_where_backward_euler_damps():
     euler, bdf2 = gaps(1), gaps(2)
     assert bdf2[1] < 0.4 * euler[1]
     assert bdf2[0] / bdf2[1] > 2.2 > euler[0] / euler[1]
+
+
+def test_a_step_from_nan_comes_back_non_finite_for_the_callers_checks():
+    v, f, i = _sheet(4)
+    cloth = ImplicitCloth(cloth_rest(v, f, 0.15, 2e-5), 5e3, 1e4, np.full(len(v), 0.004),
+                          np.zeros(1), np.array([0.05]), i[0], 1e-5, 8)  # fmt: skip
+    far = np.array([[[10.0, 10.0, 10.0], [11.0, 10.0, 10.0]]])
+    x = v.copy()
+    x[5] = np.nan
+    y, vel = cloth.step(x, np.zeros_like(v), v[i[0]], far, far, 1 / 240)
+    assert not np.isfinite(y).all() and y.shape == v.shape
+    every = ImplicitCloth(cloth_rest(v, f, 0.15, 2e-5), 5e3, 1e4, np.full(len(v), 0.004),
+                          np.zeros(1), np.array([0.05]), np.arange(len(v)), 1e-5, 8)  # fmt: skip
+    y, _ = every.step(v, np.zeros_like(v), v + 0.01, far, far, 1 / 240)
+    assert np.allclose(y, v + 0.01)  # all kinematic: placed where their bones put them

@@ -165,7 +165,7 @@ def _f1_over_u(u: np.ndarray, eps: float) -> np.ndarray:
 
 
 class ImplicitCloth:
-    """One garment's implicit Euler steps (see the module docstring).
+    """One garment's implicit steps, backward Euler or BDF2 (see the module docstring).
 
     Parameters
     ----------
@@ -248,6 +248,8 @@ class ImplicitCloth:
 
         def scalar_slots(bslot: np.ndarray) -> np.ndarray:
             """(..., ) block slots -> (..., 3, 3) scalar slots (the dummy slot for -1)."""
+            if not nb:  # nothing free
+                return np.full(bslot.shape + (3, 3), self._nnz)
             base = np.where(bslot < 0, 0, bslot)[..., None, None] * 9 + np.arange(9).reshape(3, 3)
             out = slot_of_block_entry[base]
             return np.where(bslot[..., None, None] < 0, self._nnz, out)
@@ -418,8 +420,15 @@ class ImplicitCloth:
             k += 1
             energy, grad, matrix = self._objective(y, target, inv_dt2, ends1, pairs, lag, True)
             g = grad[free].ravel()
-            step = -sla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                             options={"SymmetricMode": True}).solve(g)  # fmt: skip
+            if not len(g):  # every vertex kinematic
+                break
+            try:
+                lu = sla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                              options={"SymmetricMode": True})  # fmt: skip
+            except RuntimeError:  # a singular matrix: non-finite input; the caller's checks
+                y = np.full_like(y, np.nan)  # see a blown-up step and retry it finer
+                break
+            step = -lu.solve(g)
             p = np.zeros_like(y)
             p[free] = step.reshape(-1, 3)
             slope = float(g @ step)
