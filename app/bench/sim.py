@@ -37,6 +37,7 @@ from core.fileio import atomic_path, write_json
 from core.mesh import load_mesh
 from core.motion.procedural import PROCEDURAL_KINDS, make_motion
 from core.sim.config import QUALITY, SimConfig
+from core.sim.sanity import hem_indices, hem_radius
 from pipeline.config import CMU_CLIP, MotionSpec, PipelineConfig
 from pipeline.stages.motions import motion_from_spec
 from templates.garments import make_garment
@@ -168,8 +169,6 @@ def hem_stats_distance(positions, reference, hem, waist) -> tuple[float, float]:
     positions, reference : (T, V, 3) float
     hem : (L,) int hem loop, waist : (P,) int pinned waistband vertices
     """
-    from core.sim.sanity import hem_radius
-
     a, b = np.asarray(positions, np.float64), np.asarray(reference, np.float64)
     radius = np.abs(hem_radius(a, hem, waist) - hem_radius(b, hem, waist)).mean()
     height = np.abs(a[:, hem, 1].mean(1) - b[:, hem, 1].mean(1)).mean()
@@ -212,8 +211,6 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     shape = BodyShape()
     garment = bench_garment(args.garment, args.resolution, shape)
-    from core.sim.sanity import hem_indices
-
     hem = hem_indices(garment.vertices, garment.faces)
     rows, skipped = [], []
     for clip in clips:

@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from core.body.colliders import closest_on_segments
+from core.body.colliders import closest_on_segments, is_arm, pose_capsules
 from core.errors import InputError
 
 GRAVITY = np.array([0.0, -9.81, 0.0])
@@ -463,8 +463,6 @@ class ImplicitScene:
     device = "cpu"
 
     def __init__(self, garment, config, capsules, pins, seams, m0: np.ndarray, thickness=None):
-        from core.body.colliders import is_arm, pose_capsules
-
         if config.self_collision or len(seams.indices):
             raise InputError(
                 "the implicit solver simulates a single surface (a proxy); this garment has "
