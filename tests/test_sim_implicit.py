@@ -92,7 +92,7 @@ def test_a_pinned_sheet_hangs_on_a_capsule_without_stretching_or_passing_through
     assert strain.max() < 0.05
     assert x[:, 1].min() < 0.7  # draped down past the bar
     assert segment_contacts(x, ends)[0].min() > 0.05 + 0.004 - 0.001  # not through it
-    assert max(cloth.newton_iterations) <= 16
+    assert np.mean(cloth.newton_iterations) < 8  # most steps converge well before the cap
 
 
 def test_simulate_with_the_implicit_solver():

@@ -72,7 +72,7 @@ QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 CHEBYSHEV_RHO = 0.99
 
 #: Cloth solvers :func:`core.sim.simulate.simulate` drives: newton's Style3D and VBD, and ours,
-#: implicit Euler by Newton's method (:mod:`core.sim.implicit`, a single surface only).
+#: implicit steps solved by Newton's method (:mod:`core.sim.implicit`, a single surface only).
 SOLVERS = ("style3d", "vbd", "implicit")
 
 
@@ -94,8 +94,8 @@ class SimConfig:
     """``style3d`` (newton's projective-dynamics solver with a PCG global step: converges to
     low strain in few iterations; the default) or ``vbd`` (vertex block descent: local
     Gauss-Seidel, needs many more iterations before the fabric stops stretching) or
-    ``implicit`` (ours, :mod:`core.sim.implicit`: implicit Euler solved by Newton's method with
-    a direct sparse solve, each step iterated to ``implicit_tol``; a single surface only, and
+    ``implicit`` (ours, :mod:`core.sim.implicit`: implicit steps (``implicit_order``) solved by
+    Newton's method with a direct sparse solve, each to ``implicit_tol``; a single surface only, and
     about ten times Style3D's cost a frame at the same steps: README "Simulation quality")."""
     substeps: int = 16
     """Solver steps per 1/30 s of motion. Clips at other frame rates get the same physical time
@@ -108,7 +108,9 @@ class SimConfig:
     implicit_order: int = 2
     """``solver="implicit"``: 1 integrates by backward Euler (as Style3D does), 2 by BDF2
     (second order: a swing's numerical damping falls with the step's square, not the step;
-    a step after one of another length is backward Euler)."""
+    a step after one of another length is backward Euler). 2 by that property (the swinging
+    sheet of ``tests/test_sim_implicit.py``), not by any clip's figures: on the quick proxy
+    both orders are as far from their 2x runs as from their floor (README)."""
     implicit_tol: float = 1.0e-4
     """``solver="implicit"``: a step's Newton iterations stop when the largest update of a
     vertex is under this (metres)."""

@@ -1,4 +1,4 @@
-"""Implicit cloth steps solved by Newton's method with a direct sparse solve (``solver="implicit"``).
+"""Implicit cloth steps by Newton's method with a direct sparse solve (``solver="implicit"``).
 
 Style3D (newton's projective dynamics) iterates with the rest shape's matrix, and near the body
 its iterations converge slowly: one quick step (16 iterations) ends 9.5 mm from the same step
@@ -205,8 +205,8 @@ class ImplicitCloth:
     # -- the matrix's sparsity, fixed: every value lands by one bincount -----------------------
     # Bending's Hessian (``kb Q``, constant) enters the matrix by its diagonal only, its gradient
     # in full: it is small against the inertia's ``M / dt^2``, and its off-diagonal terms couple
-    # two rings of neighbours, which tripled a factorisation's cost on the quick proxy (25 ms
-    # against 8). Without its diagonal the line search backtracked twice as often.
+    # two rings of neighbours, which multiplies a factorisation's fill-in; its diagonal keeps
+    # the line search from backtracking on steps where bending matters.
     def _pattern(self, v: int) -> None:
         f = self.rest.faces
         vi = np.repeat(f[:, :, None], 3, 2)  # (T, 3, 3) row vertex
@@ -381,8 +381,10 @@ class ImplicitCloth:
         body = (1 - s)[:, None] * move[:, 0] + s[:, None] * move[:, 1]
         return vi, lam[vi, ki], proj, x, body, FRICTION_EPS_V * dt
 
-    def step(self, x: np.ndarray, v: np.ndarray, pinned_to: np.ndarray, ends0: np.ndarray,
-             ends1: np.ndarray, dt: float, before=None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    def step(
+        self, x: np.ndarray, v: np.ndarray, pinned_to: np.ndarray, ends0: np.ndarray,
+        ends1: np.ndarray, dt: float, before=None,
+    ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """One implicit step: backward Euler, or BDF2 given the step before.
 
         Parameters

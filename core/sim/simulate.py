@@ -66,7 +66,7 @@ KINEMATIC_CONTACT_WEIGHT = 1.0e-6
 STYLE3D_VELOCITY_FACTOR = 0.998
 
 
-#: The newton solver class each :attr:`SimConfig.solver` runs, as the cache's params name it.
+#: The solver class each :attr:`SimConfig.solver` runs, as the cache's params name it.
 SOLVER_CLASSES = {
     "style3d": "newton.SolverStyle3D",
     "vbd": "newton.SolverVBD",
