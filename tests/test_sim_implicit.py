@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from core.body.shape import BodyShape
 from core.errors import InputError
@@ -53,7 +54,8 @@ def test_gradient_and_hessian_match_finite_differences():
     far = ends + 10.0  # the contact's Hessian drops its negative (curvature) part: check apart
     near, apart = cloth._pairs([y], [ends], 1.0), cloth._pairs([y], [far], 0.0)
     e, g, _ = cloth._objective(y, target, 100.0, ends, near, None, True)
-    h = cloth._objective(y, target, 100.0, far, apart, None, True)[2]
+    upper = cloth._objective(y, target, 100.0, far, apart, None, True)[2]  # its upper triangle
+    h = upper + sp.triu(upper, 1).T
     assert (segment_contacts(y, ends)[0] < 0.154).any()
     step = 1e-6
     num_g = np.zeros_like(y)
@@ -93,6 +95,32 @@ def test_a_pinned_sheet_hangs_on_a_capsule_without_stretching_or_passing_through
     assert x[:, 1].min() < 0.7  # draped down past the bar
     assert segment_contacts(x, ends)[0].min() > 0.05 + 0.004 - 0.001  # not through it
     assert np.mean(cloth.newton_iterations) < 8  # most steps converge well before the cap
+
+
+def test_the_rms_norm_stops_sooner_and_close_to_the_max_norm():
+    """A sheet pinned along one edge swings down for 0.5 s at 60 steps a second: measured by
+    its root mean square, a step's update meets the tolerance in fewer Newton iterations than
+    by its largest vertex, and the sheet ends within a millimetre of that run (0.45 mm from a
+    run at 1e-8 when this was written, the largest vertex's 0.07)."""
+    v, f, i = _sheet(10, 0.6)
+    rest = cloth_rest(v, f, 0.15, 2e-5)
+    far = np.array([[[10.0, 10.0, 10.0], [11.0, 10.0, 10.0]]])
+    runs = {}
+    for norm in ("max", "rms"):
+        cloth = ImplicitCloth(rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1),
+                              np.array([0.05]), i[0], 1e-4, 40, norm)  # fmt: skip
+        x, vel, before = v.copy(), np.zeros_like(v), None
+        for _ in range(30):
+            x_new, v_new = cloth.step(x, vel, v[i[0]], far, far, 1 / 60, before)
+            before, x, vel = (x, vel), x_new, v_new
+        runs[norm] = x, np.mean(cloth.newton_iterations)
+    assert runs["rms"][1] < runs["max"][1]
+    assert np.linalg.norm(runs["rms"][0] - runs["max"][0], axis=1).mean() < 1e-3
+    with pytest.raises(InputError, match="implicit_norm"):
+        ImplicitCloth(rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1), np.array([0.05]),
+                      i[0], 1e-4, 40, "l2")  # fmt: skip
+    with pytest.raises(InputError, match="implicit_norm"):
+        replace(FAST, implicit_norm="l2")
 
 
 def test_simulate_with_the_implicit_solver():
@@ -146,6 +174,8 @@ def test_a_step_from_nan_comes_back_non_finite_for_the_callers_checks():
     x[5] = np.nan
     y, vel = cloth.step(x, np.zeros_like(v), v[i[0]], far, far, 1 / 240)
     assert not np.isfinite(y).all() and y.shape == v.shape
+    y, _ = cloth.step(v, np.zeros_like(v), v[i[0]], far, far, 1 / 240)  # a retry from a finite
+    assert np.isfinite(y).all()  # state factorises afresh
     every = ImplicitCloth(cloth_rest(v, f, 0.15, 2e-5), 5e3, 1e4, np.full(len(v), 0.004),
                           np.zeros(1), np.array([0.05]), np.arange(len(v)), 1e-5, 8)  # fmt: skip
     y, _ = every.step(v, np.zeros_like(v), v + 0.01, far, far, 1 / 240)

@@ -11,9 +11,11 @@ with ``h = dt`` and ``x~ = x + dt v`` for backward Euler, or BDF2's (second orde
 ``SimConfig.implicit_order``: :meth:`ImplicitCloth.step`), by Newton's method: the exact
 gradient, the Hessian made positive semi-definite term by term (the indefinite parts of
 compression, shear and the contact's curvature dropped; the body contact's own in it), one
-sparse LU solve per iteration (scipy's SuperLU on 3 x free-vertex unknowns), and a backtracking
-line search on ``E``. A step stops when the largest update is under ``SimConfig.implicit_tol``
-or after ``SimConfig.iterations`` Newton iterations.
+sparse LDL^T solve per iteration (qdldl on 3 x free-vertex unknowns: the matrix's pattern is
+fixed, so its ordering and symbolic factorisation are made once per garment), and a backtracking
+line search on ``E``. A step stops when the update (its largest vertex's, or its root mean
+square: ``SimConfig.implicit_norm``) is under ``SimConfig.implicit_tol`` or after
+``SimConfig.iterations`` Newton iterations.
 
 The material is Style3D's as this project configures it (:func:`core.sim.simulate`): the
 Baraff-Witkin membrane ``A (ku (|Fu| - 1)^2 + kv (|Fv| - 1)^2 + ks (Fu . Fv)^2) / 2`` on each
@@ -38,8 +40,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import qdldl
 import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 
 from core.body.colliders import closest_on_segments, is_arm, pose_capsules
 from core.errors import InputError
@@ -178,12 +180,14 @@ class ImplicitCloth:
     pinned : (P,) int kinematic vertices
     tol : metres, the Newton update under which a step counts converged
     iterations : the most Newton iterations a step runs
+    norm : ``"max"`` (the update's largest vertex) or ``"rms"`` (its root mean square over the
+        vertices) against ``tol``
     """
 
     def __init__(
         self, rest: ClothRest, stretch_ke: float, contact_ke: float, radius: np.ndarray,
         friction: np.ndarray, capsule_radii: np.ndarray, pinned: np.ndarray, tol: float,
-        iterations: int,
+        iterations: int, norm: str = "max",
     ):  # fmt: skip
         self.rest = rest
         self.ku = self.kv = float(stretch_ke)
@@ -194,12 +198,22 @@ class ImplicitCloth:
         )
         self.mu = np.asarray(friction, np.float64)
         self.tol, self.iterations = float(tol), int(iterations)
+        if norm not in ("max", "rms"):
+            raise InputError(f"implicit_norm must be 'max' or 'rms', got {norm!r}")
+        self.norm = norm
         v = len(rest.mass)
         free = np.ones(v, bool)
         free[np.asarray(pinned, np.int64)] = False
         self.free = free
         self.newton_iterations: list[int] = []
         self.bend_diag = np.asarray(rest.bend.diagonal())
+        self._factor = None  # qdldl's LDL^T: the ordering and symbolic pass once, then numbers
+        t = len(rest.faces)
+        self._g = np.stack([rest.du, rest.dv], 1)  # (T, 2, 3): (Fu, Fv) = g @ corners
+        # (T, 9, 4): area g_ai g_bj, rows (i, j), columns (a, b), so a triangle's Hessian blocks
+        # are this times its 2 x 2 blocks of 3 x 3 ((a, b) by (x, y)) in one batched product
+        w = rest.area[:, None, None, None, None] * self._g[:, :, None, :, None]
+        self._w = (w * self._g[:, None, :, None, :]).reshape(t, 4, 9).transpose(0, 2, 1).copy()
         self._pattern(v)
 
     # -- the matrix's sparsity, fixed: every value lands by one bincount -----------------------
@@ -233,8 +247,15 @@ class ImplicitCloth:
         m.sort_indices()
         slot_of_block_entry = np.empty(9 * nb, np.int64)
         slot_of_block_entry[m.data.astype(np.int64) - 1] = np.arange(m.nnz)
-        self._indptr, self._indices, self._nnz = m.indptr, m.indices, m.nnz
-        self._n = 3 * block.shape[0]
+        self._nnz, n = m.nnz, 3 * block.shape[0]
+        self._n = n
+        # the matrix is symmetric: its upper triangle (row <= column), column by column, is what
+        # the LDL^T factorisation reads (the pattern is symmetric, so CSR's arrays read as CSC)
+        col = np.repeat(np.arange(n), np.diff(m.indptr))
+        upper = m.indices <= col
+        self._upper = np.nonzero(upper)[0]
+        self._up_indices = m.indices[upper]
+        self._up_indptr = np.concatenate([[0], np.cumsum(np.bincount(col[upper], minlength=n))])
 
         keys = np.repeat(np.arange(block.shape[0]), np.diff(block.indptr)) * len(keep)
         keys = keys + block.indices  # sorted: CSR rows in order, columns sorted within them
@@ -261,9 +282,8 @@ class ImplicitCloth:
     # -- the objective's terms ------------------------------------------------------------------
     def _membrane(self, y: np.ndarray, hessian: bool):
         r = self.rest
-        p = y[r.faces]  # (T, 3, 3)
-        fu = np.einsum("ti,tic->tc", r.du, p)
-        fv = np.einsum("ti,tic->tc", r.dv, p)
+        f = np.matmul(self._g, y[r.faces])  # (T, 2, 3)
+        fu, fv = f[:, 0], f[:, 1]
         lu, lv = np.linalg.norm(fu, axis=1), np.linalg.norm(fv, axis=1)
         uu, vv = fu / np.maximum(lu, 1e-12)[:, None], fv / np.maximum(lv, 1e-12)[:, None]
         c = (fu * fv).sum(1)
@@ -273,7 +293,7 @@ class ImplicitCloth:
         )
         gu = a[:, None] * (self.ku * (lu - 1)[:, None] * uu + self.ks * c[:, None] * fv)  # dE/dFu
         gv = a[:, None] * (self.kv * (lv - 1)[:, None] * vv + self.ks * c[:, None] * fu)
-        grad = r.du[:, :, None] * gu[:, None] + r.dv[:, :, None] * gv[:, None]  # (T, 3, 3)
+        grad = np.matmul(self._g.transpose(0, 2, 1), np.stack([gu, gv], 1))  # (T, 3, 3)
         if not hessian:
             return energy, grad, None
         eye = np.eye(3)
@@ -289,14 +309,8 @@ class ImplicitCloth:
         huu = huu + self.ks * fv[:, :, None] * fv[:, None]
         hvv = hvv + self.ks * fu[:, :, None] * fu[:, None]
         huv = self.ks * fv[:, :, None] * fu[:, None]
-        a3 = a[:, None, None]
-        du, dv = r.du, r.dv
-        h = (
-            np.einsum("ti,tj,tab->tijab", du, du, a3 * huu)
-            + np.einsum("ti,tj,tab->tijab", du, dv, a3 * huv)
-            + np.einsum("ti,tj,tba->tijab", dv, du, a3 * huv)
-            + np.einsum("ti,tj,tab->tijab", dv, dv, a3 * hvv)
-        )  # (T, corner i, corner j, 3, 3)
+        blocks = np.stack([huu, huv, huv.transpose(0, 2, 1), hvv], 1).reshape(-1, 4, 9)
+        h = np.matmul(self._w, blocks).reshape(-1, 3, 3, 3, 3)  # (T, corner i, corner j, 3, 3)
         return energy, grad, h
 
     def _contact(self, y: np.ndarray, ends: np.ndarray, pairs, hessian: bool):
@@ -344,6 +358,9 @@ class ImplicitCloth:
         return energy, grad, h
 
     def _objective(self, y, target, inv_dt2, ends, pairs, lag, hessian: bool):
+        """``E(y)``, its gradient (V, 3) and, if ``hessian``, the upper triangle (row <=
+        column) of its positive semi-definite approximation over the free vertices' unknowns
+        (CSC, 3 x free rows and columns), else None."""
         m = self.rest.mass
         dy = y - target
         e_in = 0.5 * inv_dt2 * (m[:, None] * dy * dy).sum()
@@ -363,9 +380,24 @@ class ImplicitCloth:
         data = np.bincount(self._tri_slots.ravel(), h_tri.ravel(), minlength=self._nnz + 1)
         data += np.bincount(self._diag_slots.ravel(), diag.ravel(), minlength=self._nnz + 1)
         matrix = sp.csc_matrix(
-            (data[: self._nnz], self._indices, self._indptr), shape=(self._n, self._n)
+            (data[self._upper], self._up_indices, self._up_indptr), shape=(self._n, self._n)
         )
         return energy, grad, matrix
+
+    def _solve(self, upper: sp.csc_matrix, g: np.ndarray) -> np.ndarray:
+        """The Newton step ``-H^{-1} g`` from ``H``'s upper triangle (``n x n`` CSC, the fixed
+        pattern): qdldl's LDL^T without pivoting (``H`` is positive definite: the inertia plus
+        terms made positive semi-definite), its AMD ordering and symbolic factorisation made
+        on the first call and reused. Non-finite where ``H`` is singular or not finite."""
+        try:
+            if self._factor is None:
+                self._factor = qdldl.Solver(upper, upper=True)
+            else:
+                self._factor.update(upper, upper=True)
+            return -self._factor.solve(g)
+        except (ValueError, RuntimeError):  # a zero pivot, reported rather than divided by
+            self._factor = None
+            return np.full_like(g, np.nan)
 
     def _friction_lag(self, x: np.ndarray, ends0: np.ndarray, ends1: np.ndarray, dt: float):
         """The friction's lagged terms (:meth:`_friction`) from the contacts at the step's
@@ -424,13 +456,10 @@ class ImplicitCloth:
             g = grad[free].ravel()
             if not len(g):  # every vertex kinematic
                 break
-            try:
-                lu = sla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                              options={"SymmetricMode": True})  # fmt: skip
-            except RuntimeError:  # a singular matrix: non-finite input; the caller's checks
-                y = np.full_like(y, np.nan)  # see a blown-up step and retry it finer
+            step = self._solve(matrix, g)
+            if not np.isfinite(step).all():  # a singular matrix: non-finite input; the caller's
+                y = np.full_like(y, np.nan)  # checks see a blown-up step and retry it finer
                 break
-            step = -lu.solve(g)
             p = np.zeros_like(y)
             p[free] = step.reshape(-1, 3)
             slope = float(g @ step)
@@ -442,7 +471,8 @@ class ImplicitCloth:
                     break
                 alpha *= 0.5
             y = y + alpha * p
-            if alpha * np.abs(p).max() < self.tol:
+            size = np.abs(p).max() if self.norm == "max" else np.sqrt((p * p).sum(1).mean())
+            if alpha * size < self.tol:
                 missed = self._pairs([y], [ends1], 0.0)
                 known = set(zip(pairs[0].tolist(), pairs[1].tolist()))
                 new = [i for i, vk in enumerate(zip(*missed[:2])) if vk not in known]
@@ -483,7 +513,7 @@ class ImplicitScene:
         mu = np.array([0.0 if is_arm(name) else friction for name in capsules.names])
         self.cloth = ImplicitCloth(
             rest, fab.stretch_ke, config.contact_ke, radius, mu, capsules.radii,
-            pins.indices, config.implicit_tol, config.iterations,
+            pins.indices, config.implicit_tol, config.iterations, config.implicit_norm,
         )  # fmt: skip
         self.x = garment.vertices.astype(np.float64)
         self.v = np.zeros_like(self.x)
