@@ -32,7 +32,7 @@ from dataclasses import asdict, replace
 import numpy as np
 import torch
 
-from app.commands.train import parse_setting
+from app.commands import parse_setting
 from core.mesh import load_mesh
 from core.project import Project
 from core.sim import load_cache

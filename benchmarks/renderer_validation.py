@@ -36,7 +36,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from app.commands.train import parse_setting
+from app.commands import parse_setting
 from core.errors import InputError
 from core.project import Project
 from pipeline.config import (

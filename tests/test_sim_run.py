@@ -110,6 +110,14 @@ def test_cli_simulate_writes_cache_report_and_refuses_garbage(tmp_path, skirt, c
     imp[4] = str(tmp_path / "other.obj")
     assert main(imp) == 2
     assert "topology mismatch" in capsys.readouterr().err
+    # --set reaches any other setting; one with a flag of its own, or none, is refused.
+    args[args.index("--chebyshev") : args.index("--chebyshev") + 2] = ["--set", "damping=0.5"]
+    assert main(args) == 0
+    assert load_cache(tmp_path / "c.npz").params["sim"]["damping"] == 0.5
+    capsys.readouterr()
+    for bad in ("substeps=3", "stiffness=2"):
+        assert main([*args, "--set", bad]) == 2
+        assert f"--set {bad.split('=')[0]}: not a simulation setting" in capsys.readouterr().err
 
 
 def test_frame_zero_is_settled_by_the_lead_in(skirt):

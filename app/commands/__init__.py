@@ -5,6 +5,9 @@ libraries) is imported inside the handler, so ``dng --help`` stays fast.
 """
 
 import importlib
+import json
+
+from core.errors import InputError
 
 #: Subcommand modules in the order ``dng --help`` lists them. A module that is not there yet
 #: (a later issue's) is skipped.
@@ -27,3 +30,19 @@ def present_modules(package: str, names):
                 continue
             raise
         yield name, module
+
+
+def parse_setting(item: str) -> tuple[str, object]:
+    """``"KEY=VALUE"`` -> (key, value), the value read as JSON when it parses, else a string.
+
+    >>> parse_setting("w_gan=0.1")
+    ('w_gan', 0.1)
+    """
+    key, sep, text = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise InputError(f"--set expects KEY=VALUE, got {item!r}")
+    try:
+        return key, json.loads(text)
+    except json.JSONDecodeError:
+        return key, text

@@ -28,11 +28,12 @@ import argparse
 import contextlib
 import json
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
 
+from app.commands import parse_setting
 from core.body.colliders import penetration_depths, simulation_colliders
 from core.body.mannequin import make_body
 from core.body.shape import MANNEQUIN_JOINTS, BodyShape
@@ -113,6 +114,11 @@ def register(subparsers) -> None:
         help="cloth-cloth contact (default: on for garments in several pieces, e.g. layers)",
     )  # fmt: skip
     p.add_argument("--transition", type=float, default=None, help="rest-to-frame-0 blend, s")
+    p.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        help="another simulation setting (core.sim.config.SimConfig), e.g. --set "
+        "implicit_norm=rms --set implicit_tol=0.001",
+    )  # fmt: skip
     p.add_argument("--device", default="cpu", help="warp device: cpu or cuda")
     p.add_argument(
         "--preview", nargs="?", const="", default=None, metavar="PNG",
@@ -128,6 +134,27 @@ def register(subparsers) -> None:
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(handler=run)
+
+
+#: SimConfig fields ``dng simulate`` sets by flags of their own, not by ``--set``.
+_FLAGGED = (
+    "fabric", "solver", "substeps", "iterations", "chebyshev_rho", "self_collision",
+    "transition_s", "device",
+)  # fmt: skip
+
+
+def sim_settings(items: list[str], exclude=(), what: str = "dng simulate's --set may change"):
+    """``--set KEY=VALUE`` items -> :class:`~core.sim.config.SimConfig` changes, every key
+    checked against its fields (``exclude``: fields set another way)."""
+    known = {f.name for f in fields(SimConfig)} - set(exclude)
+    changes = dict(parse_setting(item) for item in items)
+    for key in changes:
+        if key not in known:
+            raise InputError(
+                f"--set {key}: not a simulation setting {what}; choose from "
+                f"{', '.join(sorted(known))}"
+            )
+    return changes
 
 
 def _garment(spec: str, shape):
@@ -205,8 +232,9 @@ def run(args: argparse.Namespace) -> int:
         if v is not None
     }  # fmt: skip
     config = SimConfig(
-        fabric=args.fabric, self_collision=args.self_collision, device=args.device, **changes
-    )
+        fabric=args.fabric, self_collision=args.self_collision, device=args.device, **changes,
+        **sim_settings(args.overrides, _FLAGGED),
+    )  # fmt: skip
     motion = _motion(args, shape)
     from core.sim.simulate import simulate
 

@@ -6,6 +6,7 @@ import argparse
 import json
 from dataclasses import replace
 
+from app.commands import parse_setting
 from core.errors import InputError
 from core.project import Project
 from pipeline.config import baseline_config, joint2coarse_config, project_config, renderer_config
@@ -165,22 +166,6 @@ def _config_with(args: argparse.Namespace, network: str = "renderer"):
         settings["pipeline"] = config.as_params()
         project.save_settings(settings)
     return project, config
-
-
-def parse_setting(item: str) -> tuple[str, object]:
-    """``"KEY=VALUE"`` -> (key, value), the value read as JSON when it parses, else a string.
-
-    >>> parse_setting("w_gan=0.1")
-    ('w_gan', 0.1)
-    """
-    key, sep, text = item.partition("=")
-    key = key.strip()
-    if not sep or not key:
-        raise InputError(f"--set expects KEY=VALUE, got {item!r}")
-    try:
-        return key, json.loads(text)
-    except json.JSONDecodeError:
-        return key, text
 
 
 def _with_workers(args: argparse.Namespace, project, config):
