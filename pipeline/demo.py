@@ -50,6 +50,10 @@ _SECONDS_PER = {
     # (14 s for 100 frames, 19 s for 150, 34 s for 300)
     "sim_clip": 4.0,
     "sim_frame": 0.10,
+    # the implicit solver at 2 steps a frame, 1 mm root mean square (dng bench sim --set
+    # solver=implicit --set implicit_norm=rms --set implicit_tol=0.001 --settings 2,16: 59 to
+    # 134 ms a frame), per frame
+    "implicit_frame": 0.10,
     # the detailed target embedded in the proxy's simulation and kept out of the body, per frame
     # (151 s for the quick preset's 700 frames, /tmp/q27)
     "embed_frame": 0.22,
@@ -90,7 +94,10 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     c = _SECONDS_PER
     tests = available_test_motions(config)
     pixels = (config.image_size / 128) ** 2
-    per_frame = c["sim_frame"] * config.sim_substeps * config.sim_iterations / (8 * 16)
+    if config.sim_solver == "implicit":
+        per_frame = c["implicit_frame"] * config.sim_substeps / 2
+    else:
+        per_frame = c["sim_frame"] * config.sim_substeps * config.sim_iterations / (8 * 16)
 
     def sim(frames: int) -> float:
         return c["sim_clip"] + per_frame * frames

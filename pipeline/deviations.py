@@ -138,13 +138,20 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "CPU budget: a step costs about the pixel count",
         )
     steps = f"{config.sim_substeps} x {config.sim_iterations} substeps x iterations a frame"
+    if config.sim_solver == "implicit":
+        solver = (
+            f"ours, implicit BDF2 steps by Newton's method, {config.sim_substeps} a frame, each "
+            f"until its update is under {config.sim_implicit_tol * 1000:g} mm "
+            + ("root mean square" if config.sim_implicit_norm == "rms" else "at every vertex")
+        )
+    else:
+        solver = f"newton, Style3D, {steps}, Chebyshev-accelerated, rho {CHEBYSHEV_RHO}"
     if config.target_mode == "embed":
         add(
             "ground truth",
             "the detailed garment simulated (Marvelous Designer)",
-            "the proxy simulated (newton, Style3D, "
-            + steps
-            + f", Chebyshev-accelerated, rho {CHEBYSHEV_RHO}"
+            "the proxy simulated ("
+            + solver
             + (
                 ", kept off the body by the depth of the target's layers beneath it"
                 if config.layer_thickness

@@ -7,6 +7,9 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import pytest
+
+from core.errors import InputError
 from pipeline.config import PRESETS
 from pipeline.deviations import (
     deviations,
@@ -37,7 +40,7 @@ def test_rows_follow_the_settings():
     )
     assert "SPADE block's shortcut SPADE(I(Z))" in paper
     # full adversarial weights: the loss row goes; a simulated target changes the ground truth
-    full = replace(quick, renderer_overrides={}, target_mode="simulate")
+    full = replace(quick, renderer_overrides={}, target_mode="simulate", sim_solver="style3d")
     rows = {d.paper: d.here for d in deviations(full)}
     assert "L1 10, perceptual 10, feature matching 5, GAN 0.5" not in rows
     assert rows["the detailed garment simulated (Marvelous Designer)"].startswith("simulated")
@@ -50,6 +53,11 @@ def test_rows_follow_the_settings():
     layered = "kept off the body by the depth of the target's layers"
     assert layered in {d.paper: d.here for d in deviations(quick)}[truth]
     thin = replace(quick, layer_thickness=False)
+    # the proxy's solver is named; the implicit one cannot simulate the target's layers
+    assert "by Newton's method, 2 a frame" in {d.paper: d.here for d in deviations(quick)}[truth]
+    assert "Style3D" in {d.paper: d.here for d in deviations(full)}[truth]
+    with pytest.raises(InputError, match="sim_solver='style3d'"):
+        replace(quick, target_mode="simulate")
     assert layered not in {d.paper: d.here for d in deviations(thin)}[truth]
 
 
