@@ -6,7 +6,10 @@ mannequin, the proxy is simulated under it with the project's fabric, substeps a
 simulation is cached in a scratch folder outside the project, keyed by a hash of everything
 that decides it), Joint2Coarse predicts the same frames, and the two are compared: vertex error
 (mean, 95th percentile, max, mm), body penetration of both against the capsules the simulation
-collides with, and milliseconds per frame of both.
+collides with, and milliseconds per frame of both. With ``floor``, the proxy is simulated again
+moved 10 um at random (:data:`core.sim.sanity.FLOOR_PERTURBATION_M`): where the cloth buckles
+its folds go one way or the other, so the simulation is only this close to itself, and no
+prediction can be expected to come much closer (README "Simulation quality").
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from core.motion.motion import Motion
 from core.motion.procedural import PROCEDURAL_KINDS
 from core.project import Project
 from core.sim import load_cache, save_cache
+from core.sim.sanity import FLOOR_PERTURBATION_M, perturbed
 from pipeline.config import Log, MotionSpec, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import motion_from_spec
 from pipeline.stages.simulate import proxy_thickness
@@ -110,9 +114,12 @@ def simulate_cached(
     motion: Motion,
     log: Log = quiet,
     cache_root: Path | None = None,
+    moved_m: float = 0.0,
 ):
     """The proxy simulated under ``motion`` with the project's settings, from the scratch cache
-    (``cache_root``, default :func:`scratch_dir`) when it holds this exact simulation.
+    (``cache_root``, default :func:`scratch_dir`) when it holds this exact simulation;
+    ``moved_m`` > 0: the proxy's rest vertices moved first by a seeded normal offset of that
+    standard deviation (metres; :func:`core.sim.sanity.perturbed`).
 
     Returns
     -------
@@ -126,6 +133,8 @@ def simulate_cached(
     mesh, proxy_file = project_proxy(project)
     sim_cfg = sim_config(config)
     thickness = proxy_thickness(project, mesh) if config.layer_thickness else None
+    if moved_m > 0:
+        mesh = perturbed(mesh, moved_m, 0)
     params = {
         "sim": sim_cfg.as_dict(),
         "body": asdict(config.body),
@@ -140,7 +149,8 @@ def simulate_cached(
             return load_cache(cache_file), report, folder, True
         except (InputError, ValueError, OSError):
             log(f"  cached simulation in {folder} is unreadable: simulating again")
-    log(f"  simulating the proxy ({motion.num_frames} frames; cached in {folder})")
+    moved = f", moved {moved_m * 1e6:g} um" if moved_m > 0 else ""
+    log(f"  simulating the proxy{moved} ({motion.num_frames} frames; cached in {folder})")
     cache, report = simulate(
         mesh, motion, config.body, sim_cfg, path=proxy_file, thickness=thickness
     )
@@ -157,8 +167,10 @@ def evaluate_on_motion(
     source: str,
     log: Log = quiet,
     cache_root: Path | None = None,
+    floor: bool = False,
 ) -> dict:
-    """Joint2Coarse against the simulation on one motion (already on the mannequin).
+    """Joint2Coarse against the simulation on one motion (already on the mannequin); with
+    ``floor``, the simulation against itself on the proxy moved 10 um too (``simulation_floor_mm``).
 
     Raises
     ------
@@ -214,6 +226,10 @@ def evaluate_on_motion(
         if motion.num_frames >= other.config.window:
             pred_other = predict_proxy(other, joints, root_rot, source=source)
             compare[other.config.model] = asdict(vertex_errors(pred_other, reference.positions))
+    floor_mm = None
+    if floor:
+        moved = simulate_cached(project, config, motion, log, cache_root, FLOOR_PERTURBATION_M)[0]
+        floor_mm = asdict(vertex_errors(moved.positions, reference.positions))
     return {
         "project": str(project.root),
         "model": net.config.model,
@@ -235,6 +251,7 @@ def evaluate_on_motion(
             "push_out": max(push_ms, 0.0),
         },
         "compare_error_mm": compare,
+        "simulation_floor_mm": floor_mm,
         "simulation_cache": str(folder),
         "simulation_from_cache": cached,
     }
@@ -277,6 +294,12 @@ def format_report(report: dict) -> str:
         lines.append(
             f"{'(' + model + ' model, beside it)':28s} {err['mean_mm']:8.1f} {err['p95_mm']:8.1f} "
             f"{err['max_mm']:8.1f}"
+        )
+    if report.get("simulation_floor_mm"):
+        f = report["simulation_floor_mm"]
+        lines.append(
+            f"{'simulation, proxy moved 10 um':28s} {f['mean_mm']:8.1f} {f['p95_mm']:8.1f} "
+            f"{f['max_mm']:8.1f}   (the floor: how far the simulation is from itself)"
         )
     lines.append(
         f"streaming (one frame at a time): {ms['prediction_streaming']:.2f} ms/frame; simulation "

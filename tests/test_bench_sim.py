@@ -62,9 +62,9 @@ def test_sim_overrides_name_only_settings_the_bench_may_change():
 
 
 def test_floor_runs_the_setting_on_a_moved_garment(tmp_path, capsys):
-    from app.bench.sim import perturbed
     from app.cli import main
     from core.mesh import save_mesh
+    from core.sim.sanity import perturbed
     from tests.sim_helpers import frustum_skirt
 
     skirt = frustum_skirt(16, 6)

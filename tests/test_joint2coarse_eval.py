@@ -74,6 +74,17 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     code, out, _ = dng(*args)
     assert code == 0
     assert all(w in out for w in ("Joint2Coarse", "pushed out", "simulation", "mean mm"))
+    assert again["simulation_floor_mm"] is None and "moved 10 um" not in out
+    # --floor: the simulation again on the proxy moved 10 um, cached beside the first.
+    code, out, err = dng(*args, "--floor", "--json")
+    floored = json.loads(out)
+    assert code == 0 and floored["simulation_from_cache"], err
+    f = floored["simulation_floor_mm"]
+    assert 0 < f["mean_mm"] <= f["p95_mm"] <= f["max_mm"] < 1e3
+    assert floored["error_mm"] == report["error_mm"]
+    assert len([p for p in scratch.rglob("cache.npz")]) == 2
+    code, out, _ = dng(*args, "--floor")
+    assert code == 0 and "simulation, proxy moved 10 um" in out
 
 
 def test_eval_joint2coarse_on_capture(smoke_project, scratch, dng, bvh_dir):

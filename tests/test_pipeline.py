@@ -441,3 +441,35 @@ def test_a_new_ground_truth_reruns_what_learned_from_the_old_one(smoke, tmp_path
     after = json.loads(index.read_text())
     assert after["samples"] == before["samples"]  # the same cameras ...
     assert after["ground_truth"] != before["ground_truth"]  # ... of another ground truth
+
+
+def test_the_proxy_solver_setting_reaches_the_proxy_simulation(smoke, tmp_path):
+    """``sim_solver`` and its tolerance go to every proxy simulation of the project (the quick
+    preset's ground truth is the implicit solver's); settings saved before the setting existed
+    mean Style3D, as they were made."""
+    import shutil
+    from dataclasses import replace
+
+    from core.sim import load_cache
+    from pipeline.config import sim_config
+    from pipeline.stages.simulate import stage_simulate
+
+    quick = sim_config(PRESETS["quick"])
+    assert (quick.solver, quick.substeps, quick.implicit_norm) == ("implicit", 2, "rms")
+    older = {k: v for k, v in PRESETS["smoke"].as_params().items() if not k.startswith("sim_")}
+    assert sim_config(PipelineConfig.from_params(older)).solver == "style3d"
+    out, _ = smoke
+    copy = tmp_path / "project"
+    copy.mkdir()
+    for part in ("project.json", "motions", "garment", "proxy"):
+        (shutil.copytree if (out / part).is_dir() else shutil.copy)(out / part, copy / part)
+    project = Project(copy)
+    config = replace(
+        project_config(project), sim_solver="implicit", sim_substeps=2, sim_implicit_tol=3e-4,
+        sim_implicit_norm="rms",
+    )  # fmt: skip
+    cache = load_cache(stage_simulate(project, config, "twirl", "proxy"))
+    assert cache.params["solver"] == "core.sim.implicit.ImplicitCloth"
+    assert cache.params["sim"]["implicit_norm"] == "rms" and np.isfinite(cache.positions).all()
+    report = json.loads((copy / "sim" / "twirl-proxy" / "report.json").read_text())
+    assert report["steps_per_frame"] == 2 and report["strain_max"] < report["strain_limit"] * 1.5

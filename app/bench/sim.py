@@ -37,7 +37,7 @@ from core.fileio import atomic_path, write_json
 from core.mesh import load_mesh
 from core.motion.procedural import PROCEDURAL_KINDS, make_motion
 from core.sim.config import QUALITY, SimConfig
-from core.sim.sanity import hem_indices, hem_radius
+from core.sim.sanity import FLOOR_PERTURBATION_M, hem_indices, hem_radius, perturbed
 from pipeline.config import CMU_CLIP, MotionSpec, PipelineConfig
 from pipeline.stages.motions import motion_from_spec
 from templates.garments import make_garment
@@ -95,9 +95,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--set chebyshev_rho=0",
     )  # fmt: skip
 
-
-#: Standard deviation (metres) of the random displacement of the rest garment in ``--floor``.
-FLOOR_PERTURBATION_M = 1e-5
 
 #: SimConfig fields each measured setting (and its reference) decides itself.
 _MEASURED_FIELDS = ("substeps", "iterations", "linear_iterations")
@@ -168,14 +165,6 @@ def hem_stats_distance(positions, reference, hem, waist) -> tuple[float, float]:
     radius = np.abs(hem_radius(a, hem, waist) - hem_radius(b, hem, waist)).mean()
     height = np.abs(a[:, hem, 1].mean(1) - b[:, hem, 1].mean(1)).mean()
     return float(radius * 1000), float(height * 1000)
-
-
-def perturbed(garment, sigma: float, seed: int):
-    """``garment`` with every vertex moved by a normal random offset of ``sigma`` metres per axis
-    (a seeded generator: the same offsets every run)."""
-    rng = np.random.default_rng(seed)
-    moved = garment.vertices + sigma * rng.standard_normal(garment.vertices.shape)
-    return replace(garment, vertices=moved.astype(np.float32))
 
 
 def bench_garment(spec: str, resolution: float, shape):

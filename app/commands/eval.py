@@ -53,6 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     j.add_argument("--frames", type=int, help="frames to keep (default: all; 150 of a kind)")
     j.add_argument("--start-s", type=float, default=0.0, help="seconds of the file to skip")
     j.add_argument("--seed", type=int, default=0, help="seed of a procedural kind")
+    j.add_argument(
+        "--floor", action="store_true",
+        help="also simulate the proxy moved 10 um at random: how far the simulation is from "
+        "itself, which no prediction can be expected to beat (cached too)",
+    )  # fmt: skip
     p.add_argument(
         "--inception",
         metavar="WEIGHTS.pth",
@@ -90,7 +95,7 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
     config = project_config(project)
     log = (lambda message: print(message, file=sys.stderr, flush=True)) if args.json else print
     motion = eval_motion(config, args.motion, args.frames, args.start_s, args.seed)
-    report = evaluate_on_motion(project, config, motion, args.motion, log)
+    report = evaluate_on_motion(project, config, motion, args.motion, log, floor=args.floor)
     print(json.dumps(report, indent=1) if args.json else format_report(report))
     return 0
 

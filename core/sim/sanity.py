@@ -12,6 +12,8 @@ the sanity tests and by ``dng bench sim``:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from core.errors import InputError
@@ -87,3 +89,17 @@ def hem_lift(positions: np.ndarray, hem: np.ndarray, waist: np.ndarray) -> np.nd
     p = np.asarray(positions, np.float64)
     rel = p[:, hem, 1].mean(axis=1) - _centres(p, waist)[:, 1]
     return rel - rel[0]
+
+
+#: Standard deviation (metres) of the random displacement of a rest garment that measures a
+#: simulation's floor: how far the cloth's own sensitivity alone moves it (``dng bench sim
+#: --floor``, ``dng eval joint2coarse --floor``).
+FLOOR_PERTURBATION_M = 1e-5
+
+
+def perturbed(garment, sigma: float, seed: int):
+    """``garment`` with every vertex moved by a normal random offset of ``sigma`` metres per axis
+    (a seeded generator: the same offsets every run)."""
+    rng = np.random.default_rng(seed)
+    moved = garment.vertices + sigma * rng.standard_normal(garment.vertices.shape)
+    return replace(garment, vertices=moved.astype(np.float32))
