@@ -97,8 +97,9 @@ class SimConfig:
     low strain in few iterations; the default) or ``vbd`` (vertex block descent: local
     Gauss-Seidel, needs many more iterations before the fabric stops stretching) or
     ``implicit`` (ours, :mod:`core.sim.implicit`: implicit steps (``implicit_order``) solved by
-    Newton's method with a direct sparse solve, each to ``implicit_tol``; a single surface only, and
-    about ten times Style3D's cost a frame at the same steps: README "Simulation quality")."""
+    Newton's method with a direct sparse solve, each to ``implicit_tol``; a single surface only;
+    converged at Style3D medium's cost at 2 steps a frame, ``implicit_norm="rms"``: README
+    "Simulation quality")."""
     substeps: int = 16
     """Solver steps per 1/30 s of motion. Clips at other frame rates get the same physical time
     step or a finer one: ``ceil(substeps * 30 / fps)`` steps per frame, at least one."""
