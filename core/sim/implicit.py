@@ -46,6 +46,7 @@ import scipy.sparse as sp
 
 from core.body.colliders import closest_on_segments, is_arm, pose_capsules
 from core.errors import InputError
+from core.sim.config import IMPLICIT_NORMS
 
 GRAVITY = np.array([0.0, -9.81, 0.0])
 #: Slip speed (m/s) under which friction is static (IPC's smoothing of Coulomb's law).
@@ -199,8 +200,8 @@ class ImplicitCloth:
         )
         self.mu = np.asarray(friction, np.float64)
         self.tol, self.iterations = float(tol), int(iterations)
-        if norm not in ("max", "rms"):
-            raise InputError(f"implicit_norm must be 'max' or 'rms', got {norm!r}")
+        if norm not in IMPLICIT_NORMS:
+            raise InputError(f"implicit_norm must be one of {IMPLICIT_NORMS}, got {norm!r}")
         self.norm = norm
         v = len(rest.mass)
         free = np.ones(v, bool)
