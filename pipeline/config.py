@@ -372,8 +372,9 @@ PRESETS: dict[str, PipelineConfig] = {
     # motion (dng bench sim --garment P/proxy/positions.obj --clips dance,walk,jump --qualities
     # '' --settings 2,16 --floor --set solver=implicit --set implicit_norm=rms --set
     # implicit_tol=T, P a quick project; mean mm to the 2x run / floor, dance, walk, jump): at
-    # T = 0.001 33.1 / 30.4, 27.9 / 30.4, 26.4 / 27.1 (59 to 134 ms a frame); at 0.0003, taken,
-    # 31.7 / 34.0, 23.6 / 28.6, 33.5 / 25.1 (99 to 158). The tighter tolerance because at 1 mm
+    # T = 0.001 33.1 / 30.4, 27.9 / 30.4, 26.4 / 27.1 (59 to 134 ms a frame, a second bench
+    # beside); at 0.0003, taken, 31.7 / 34.0, 23.6 / 28.6, 33.5 / 25.1 (102 to 147 ms a frame
+    # alone, without --floor). The tighter tolerance because at 1 mm
     # the layered proxy stretched 0.39 on the library's high jump, over the sanity limit of 0.3,
     # and 0.22 at 0.3 mm (dng simulate --garment P/proxy/positions.obj --layers
     # P/garment/target.obj --motion P/motions/jump-high.bvh --solver implicit --substeps 2
