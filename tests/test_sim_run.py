@@ -118,6 +118,8 @@ def test_cli_simulate_writes_cache_report_and_refuses_garbage(tmp_path, skirt, c
     for bad in ("substeps=3", "stiffness=2"):
         assert main([*args, "--set", bad]) == 2
         assert f"--set {bad.split('=')[0]}: not a simulation setting" in capsys.readouterr().err
+    assert main([*args, "--set", "damping=fast"]) == 2  # a value of the wrong type, named
+    assert "damping='fast' must be of type float" in capsys.readouterr().err
 
 
 def test_frame_zero_is_settled_by_the_lead_in(skirt):

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
+from numbers import Integral, Real
+
+import numpy as np
 
 from core.errors import InputError
 
@@ -77,6 +80,12 @@ SOLVERS = ("style3d", "vbd", "implicit")
 #: How the implicit solver's Newton updates are measured (``SimConfig.implicit_norm``).
 IMPLICIT_NORMS = ("max", "rms")
 
+#: The Python types each of :class:`SimConfig`'s annotations admits (an int for a float).
+_SETTING_TYPES = {
+    "int": Integral, "float": Real, "float | None": (Real, type(None)),
+    "bool | None": (bool, np.bool_, type(None)), "str": str,
+}  # fmt: skip
+
 
 def fabric(name: str) -> Fabric:
     """The preset called ``name``; ``InputError`` listing the choices otherwise."""
@@ -120,9 +129,8 @@ class SimConfig:
     implicit_norm: str = "max"
     """``solver="implicit"``: how a Newton update meets ``implicit_tol``: ``max``, its largest
     vertex's; ``rms``, its root mean square over the vertices. Where the cloth buckles, a few
-    vertices keep moving a millimetre an iteration from one fold to the next for many
-    iterations while the rest has settled; ``rms`` stops there (README "Simulation quality"
-    measures both)."""
+    vertices can keep moving from one fold to the next for many iterations while the rest has
+    settled; ``rms`` stops there (README "Simulation quality" measures both)."""
     linear_iterations: int = 10
     """Conjugate-gradient iterations of each Style3D iteration's linear solve (newton's
     default is 10). Too few and the waist's motion does not reach the hem within a step: the
@@ -186,6 +194,12 @@ class SimConfig:
     """Warp device: ``cpu`` or ``cuda`` / ``cuda:0``."""
 
     def __post_init__(self) -> None:
+        for f in fields(self):  # a setting from the command line (--set) may be any JSON value
+            value = getattr(self, f.name)
+            if not isinstance(value, _SETTING_TYPES[f.type]) or (
+                isinstance(value, bool) and "bool" not in f.type
+            ):
+                raise InputError(f"simulation setting {f.name}={value!r} must be of type {f.type}")
         fabric(self.fabric)
         if self.solver not in SOLVERS:
             raise InputError(f"unknown solver {self.solver!r}; choose one of {', '.join(SOLVERS)}")

@@ -504,7 +504,6 @@ class ImplicitScene:
             )
         fab = config.material
         friction = config.layer_friction if thickness is not None else fab.friction
-        self._pose = pose_capsules
         self.capsules = capsules
         self.config = config
         self.pins = pins
@@ -524,7 +523,7 @@ class ImplicitScene:
 
     def body_poses(self, transforms: np.ndarray) -> np.ndarray:
         """The capsules' segments for skinning transforms (..., J, 4, 4): (..., K, 2, 3)."""
-        return self._pose(self.capsules, np.asarray(transforms))
+        return pose_capsules(self.capsules, np.asarray(transforms))
 
     def step(self, ma: np.ndarray, mb: np.ndarray, dt: float, poses: tuple | None = None) -> None:
         """One step with the body moving from transforms ``ma`` to ``mb`` (J, 4, 4);
