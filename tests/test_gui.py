@@ -163,6 +163,13 @@ def test_builtin_garments_are_cached_by_name_params_and_code(tmp_path, monkeypat
     assert not cached and len(made) == 3
 
 
+def test_the_motion_list_offers_every_procedural_kind():
+    from app.gui.tabs.motion import PROCEDURAL
+    from core.motion.procedural import PROCEDURAL_KINDS
+
+    assert PROCEDURAL == PROCEDURAL_KINDS
+
+
 def test_view_mode_and_speed_settings_fall_back_when_unknown():
     s = GuiSettings.from_dict({"view_mode": "wipe", "play_speed": 3.0, "loop": False})
     assert (s.view_mode, s.play_speed, s.loop) == ("neural", 1.0, False)

@@ -127,6 +127,23 @@ def test_jump_leaves_the_floor_and_lands():
     assert root_y.max() - np.median(root_y) > 0.1
 
 
+def test_broad_jump_goes_further_and_leans_into_it():
+    """``broad-jump`` is ``jump`` with longer flights forward (0.5 to 1 m a jump against 0 to 0.5)
+    and the torso leaning with the forward speed; both land and fly as ``jump`` does."""
+    low = feet("broad-jump")[..., 1].min(2).min(1)
+    assert (low > 0.05).any() and (low < CONTACT).mean() > 0.3
+    travel, lean = {}, {}
+    for kind in ("jump", "broad-jump"):
+        m, pos, rot = clip(kind)
+        root = pos[:, 0]
+        speed = np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1) * m.fps
+        travel[kind] = np.percentile(speed, 95)
+        up = rot[:, 0] @ np.array([0.0, 1.0, 0.0])
+        lean[kind] = np.degrees(np.arccos(np.clip(up[:, 1], -1, 1))).max()
+    assert travel["broad-jump"] > 1.5 * travel["jump"] and travel["broad-jump"] > 1.0, travel
+    assert lean["broad-jump"] > lean["jump"] + 10.0, lean
+
+
 @pytest.mark.parametrize("kind", ("walk", "circle-walk"))
 def test_walk_stance_feet_do_not_slide(kind):
     """A heel or toe touching the floor stays where it touched down (within 2 cm)."""
@@ -254,8 +271,9 @@ def test_kinds_differ_more_than_seeds():
     within = {k: _energy_distance(desc[k, 0], desc[k, 1]) for k in PROCEDURAL_KINDS}
     for i, a in enumerate(PROCEDURAL_KINDS):
         for b in PROCEDURAL_KINDS[i + 1 :]:
-            if {a, b} == {"walk", "circle-walk"}:
-                continue  # the same gait on another path: see test_walk_is_straight...
+            if {a, b} in ({"walk", "circle-walk"}, {"jump", "broad-jump"}):
+                continue  # the same poses on another path: see test_walk_is_straight...,
+                # test_broad_jump_goes_further_and_leans_into_it
             between = _energy_distance(desc[a, 0], desc[b, 0])
             assert between > 2.0 * max(within[a], within[b]) and between > 0.015, (
                 a, b, between, within[a], within[b],

@@ -1,4 +1,4 @@
-"""Procedural clips on the mannequin: dance, twirl, walk, circle-walk, idle, jump.
+"""Procedural clips on the mannequin: dance, twirl, walk, circle-walk, idle, jump, broad-jump.
 
 Every clip is a function of time in seconds, evaluated at the frame times, so the same seed
 describes the same motion at any frame rate and any clip length (a longer clip extends a shorter
@@ -41,7 +41,9 @@ from core.motion.retarget import (
 from core.skeleton import Skeleton
 
 #: The kinds :func:`make_motion` knows.
-PROCEDURAL_KINDS: tuple[str, ...] = ("dance", "twirl", "walk", "circle-walk", "idle", "jump")
+PROCEDURAL_KINDS: tuple[str, ...] = (
+    "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump",
+)  # fmt: skip
 
 _X, _Y, _Z = np.eye(3)
 _DEG = np.pi / 180.0
@@ -590,7 +592,19 @@ def _plan_twirl(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     )  # fmt: skip
 
 
-def _plan_jump(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
+#: Forward distance of one jump, as a fraction of a 1.70 m body: (low, high) of ``jump`` (mostly
+#: upwards) and ``broad-jump`` (a standing long jump, leaning into it).
+_JUMP_REACH = {"jump": (0.0, 0.5), "broad-jump": (0.5, 1.0)}
+#: Forward lean (degrees) of the torso per m/s of forward speed, and the largest crouch depth
+#: (fraction of a 1.70 m body), of each jumping kind.
+_JUMP_LEAN = {"jump": 0.0, "broad-jump": 14.0}
+_JUMP_DEPTH = {"jump": 0.24, "broad-jump": 0.3}
+
+
+def _plan_jump(t: np.ndarray, rng: Streams, body: _Body, kind: str = "jump") -> _Plan:
+    """Jumps in place or a little forward (``jump``), or standing long jumps (``broad-jump``:
+    a deeper crouch, 0.5 to 1 m forward, the torso leaning with the forward speed); each may
+    turn in the air."""
     r0 = rng(0)
     scale = body.height / 1.70
     psi0 = r0.uniform(-np.pi, np.pi)
@@ -605,7 +619,7 @@ def _plan_jump(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     while tt < t[-1] + _MARGIN:
         tt += rj.uniform(0.4, 1.0)
         keys.append((tt, stand, 0.0))
-        depth = rj.uniform(0.14, 0.24) * scale
+        depth = rj.uniform(0.14, _JUMP_DEPTH[kind]) * scale
         tt += rj.uniform(0.35, 0.5)
         keys.append((tt, stand - depth, 0.0))
         v0 = np.sqrt(2 * GRAVITY * rj.uniform(0.15, 0.35) * scale)
@@ -620,7 +634,7 @@ def _plan_jump(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
         keys.append((tt, stand - v0 * absorb / 2.8, 0.0))
         tt += rj.uniform(0.35, 0.5)
         keys.append((tt, stand, 0.0))
-        dist = rj.uniform(0.0, 0.5) * scale
+        dist = rj.uniform(*_JUMP_REACH[kind]) * scale
         twist = rj.uniform(-np.pi / 2, np.pi / 2) if rj.uniform() < 0.4 else 0.0
         moves.append((t_off, t_off + flight, dist, twist))
     keys = np.array(keys)
@@ -652,6 +666,15 @@ def _plan_jump(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
             pos += (dist * u)[:, None] * np.array([np.sin(h), np.cos(h)])
         return pos
 
+    def forward_speed(tt):
+        """Speed (m/s) along the heading of each move: the derivative of ``center``'s ramps."""
+        out = np.zeros_like(tt)
+        for t0, t1, dist, _ in moves:
+            d = t1 - t0 + 0.2
+            u = np.clip((tt - t0 + 0.1) / d, 0.0, 1.0)
+            out += dist * 30.0 * u * u * (1.0 - u) ** 2 / d
+        return out
+
     swings = [moves[:, :2].copy(), moves[:, :2].copy()]
     k = len(moves) + 1
     width = body.hip_half + r0.uniform(0.0, 0.06) * scale
@@ -676,9 +699,10 @@ def _plan_jump(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     swing = _bound(4.0 * up / scale, -45, 125)  # arms back in the crouch, up in the air
     s["l_flex"], s["r_flex"] = swing, swing
     bend = _bound(-6.0 * up / scale - 0.6, 0, 40)
+    pitch = 0.7 * bend + _JUMP_LEAN[kind] * forward_speed(t)
     p = psi(t)
     return _Plan(
-        root_xz=center(t), root_y=y, yaw=p, pitch=0.7 * bend * _DEG, roll=np.zeros_like(t),
+        root_xz=center(t), root_y=y, yaw=p, pitch=pitch * _DEG, roll=np.zeros_like(t),
         ankles=ankles, foot_yaw=fyaw, foot_pitch=fpitch,
         spine=np.stack([0.5 * bend, s["side"], s["twist"]], -1) * _DEG,
         neck=np.stack([s["nbend"] - 0.5 * bend, s["nside"], s["ntwist"]], -1) * _DEG,
@@ -693,6 +717,7 @@ _PLANNERS = {
     "circle-walk": lambda t, rng, body: _plan_walk(t, rng, body, circle=True),
     "idle": _plan_idle,
     "jump": _plan_jump,
+    "broad-jump": lambda t, rng, body: _plan_jump(t, rng, body, "broad-jump"),
 }
 assert tuple(_PLANNERS) == PROCEDURAL_KINDS
 
@@ -801,7 +826,8 @@ def make_motion(
     kind : one of :data:`PROCEDURAL_KINDS`
         ``dance`` (steps, hip sway, spins, big arm swings: the default training motion),
         ``twirl`` (continuous spins in place, arms out), ``walk`` (straight), ``circle-walk``,
-        ``idle`` (gentle sway, weight shifts), ``jump`` (crouch, take-off, flight, landing).
+        ``idle`` (gentle sway, weight shifts), ``jump`` (crouch, take-off, flight, landing),
+        ``broad-jump`` (standing long jumps).
     frames : number of frames (>= 1)
     fps : frames per second (> 0); frame i is at time i / fps seconds
     seed : non-negative integer; the same seed gives the same motion at any fps and length
