@@ -238,6 +238,7 @@ def evaluate_on_motion(
         "fps": float(motion.fps),
         "vertices": int(pred.shape[1]),
         "error_mm": asdict(vertex_errors(pred, reference.positions)),
+        "error_mm_per_second": errors_per_second(pred, reference.positions, motion.fps),
         "error_mm_pushed_out": asdict(vertex_errors(pushed, reference.positions)),
         "penetration": {
             "prediction": penetration_summary(pred, ends, radii),
@@ -255,6 +256,24 @@ def evaluate_on_motion(
         "simulation_cache": str(folder),
         "simulation_from_cache": cached,
     }
+
+
+def errors_per_second(predicted: np.ndarray, reference: np.ndarray, fps: float) -> list[dict]:
+    """Where along the motion the prediction goes wrong: the vertex error of each second.
+
+    predicted, reference : (T, V, 3) metres. Returns one dict per window of ``round(fps)``
+    frames (the last may be shorter): ``start_s`` and the window's ``mean_mm``, ``p95_mm``,
+    ``max_mm``."""
+    from training.joint2coarse import vertex_errors
+
+    step = max(1, round(fps))
+    return [
+        {
+            "start_s": i / fps,
+            **asdict(vertex_errors(predicted[i : i + step], reference[i : i + step])),
+        }
+        for i in range(0, len(predicted), step)
+    ]
 
 
 def project_proxy(project: Project):
@@ -300,6 +319,14 @@ def format_report(report: dict) -> str:
         lines.append(
             f"{'simulation, proxy moved 10 um':28s} {f['mean_mm']:8.1f} {f['p95_mm']:8.1f} "
             f"{f['max_mm']:8.1f}   (the floor: how far the simulation is from itself)"
+        )
+    seconds = report["error_mm_per_second"]
+    if len(seconds) > 1:
+        worst = max(seconds, key=lambda w: w["mean_mm"])
+        lines.append(
+            "mean error each second (mm): "
+            + " ".join(f"{w['mean_mm']:.0f}" for w in seconds)
+            + f"; the worst from {worst['start_s']:.1f} s (p95 {worst['p95_mm']:.0f} mm)"
         )
     lines.append(
         f"streaming (one frame at a time): {ms['prediction_streaming']:.2f} ms/frame; simulation "

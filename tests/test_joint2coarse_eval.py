@@ -56,6 +56,12 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     assert not any(smoke_project in p.parents for p in scratch.rglob("*"))
     e = report["error_mm"]
     assert 0 < e["mean_mm"] <= e["p95_mm"] <= e["max_mm"] < 1e3
+    # Each second's error: 36 frames at 30 fps are a second and 6 frames, whose means
+    # weighted by their frames give the whole motion's.
+    seconds = report["error_mm_per_second"]
+    assert [w["start_s"] for w in seconds] == [0.0, 1.0]
+    assert max(w["max_mm"] for w in seconds) == e["max_mm"]
+    assert abs((30 * seconds[0]["mean_mm"] + 6 * seconds[1]["mean_mm"]) / 36 - e["mean_mm"]) < 1e-6
     pen = report["penetration"]
     for key in ("prediction", "prediction_pushed_out", "simulation"):
         assert 0.0 <= pen[key]["inside_percent"] <= 100.0 and pen[key]["max_mm"] >= 0.0
@@ -74,6 +80,7 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     code, out, _ = dng(*args)
     assert code == 0
     assert all(w in out for w in ("Joint2Coarse", "pushed out", "simulation", "mean mm"))
+    assert "mean error each second (mm)" in out and "the worst from" in out
     assert again["simulation_floor_mm"] is None and "moved 10 um" not in out
     # --floor: the simulation again on the proxy moved 10 um, cached beside the first.
     code, out, err = dng(*args, "--floor", "--json")

@@ -89,6 +89,12 @@ def _quintic(u: np.ndarray) -> np.ndarray:
     return u * u * u * (10.0 + u * (-15.0 + 6.0 * u))
 
 
+def _quintic_slope(u: np.ndarray) -> np.ndarray:
+    """The derivative of :func:`_quintic` in ``u`` (0 outside [0, 1])."""
+    u = np.clip(u, 0.0, 1.0)
+    return 30.0 * u * u * (1.0 - u) ** 2
+
+
 def _bump(u: np.ndarray) -> np.ndarray:
     """0 at u = 0 and 1 with zero slope there, 1 at u = 1/2."""
     u = np.clip(u, 0.0, 1.0)
@@ -671,8 +677,7 @@ def _plan_jump(t: np.ndarray, rng: Streams, body: _Body, kind: str = "jump") -> 
         out = np.zeros_like(tt)
         for t0, t1, dist, _ in moves:
             d = t1 - t0 + 0.2
-            u = np.clip((tt - t0 + 0.1) / d, 0.0, 1.0)
-            out += dist * 30.0 * u * u * (1.0 - u) ** 2 / d
+            out += dist * _quintic_slope((tt - t0 + 0.1) / d) / d
         return out
 
     swings = [moves[:, :2].copy(), moves[:, :2].copy()]
