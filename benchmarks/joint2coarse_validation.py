@@ -15,7 +15,8 @@ e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-va
 on the validation motions too: how closely the model fits motions it has seen, against what it
 does on motions it has not (never a choice: a diagnosis). ``--no-turn-lags`` measures ours
 without the turning-rate features over longer lags, ``--every-joint-dynamic`` with every
-joint's velocities and accelerations instead of ``DYNAMIC_JOINTS``' (ablations inside this
+joint's velocities and accelerations instead of ``DYNAMIC_JOINTS``', ``--long-lags`` with
+every dynamic feature over twice the lags too (with ``--set window=66``) (ablations inside this
 process).
 """
 
@@ -79,13 +80,24 @@ def main() -> None:
         "--every-joint-dynamic", action="store_true",
         help="ablation: ours with every joint's velocities and accelerations (not DYNAMIC_JOINTS)",
     )  # fmt: skip
+    ap.add_argument(
+        "--long-lags", action="store_true",
+        help="ablation: ours with velocities, accelerations and turning rates over twice the "
+        "lags too (24 and 32 samples; give a window that holds them, e.g. --set window=66)",
+    )  # fmt: skip
     args = ap.parse_args()
+    if args.long_lags:  # as --no-turn-lags: this process only
+        body_model.VELOCITY_LAGS += (24,)
+        body_model.ACCELERATION_LAGS += (12,)
+        body_model.TURN_LAGS += (24, 32)
     if args.every_joint_dynamic:  # as --no-turn-lags: this process only
         body_model._DYNAMIC = list(body_model._DESC.values())
     if args.no_turn_lags:  # an ablation of this process only: nothing is saved
         body_model.TURN_LAGS = ()
 
-    ablations = [f for f in ("every_joint_dynamic", "no_turn_lags") if getattr(args, f)]
+    ablations = [
+        f for f in ("every_joint_dynamic", "no_turn_lags", "long_lags") if getattr(args, f)
+    ]
     torch.set_num_threads(1)
     project = Project(args.project)
     config = project_config(project)

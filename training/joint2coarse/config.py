@@ -112,7 +112,12 @@ class Joint2CoarseConfig(PlainConfig):
     preset's validation motions (as ``ridge``): at ridge 1, 0: 74.0 / 176, 1: 71.2 / 170,
     3: 71.5 / 172; at ridge 30, 1: 53.7 / 112, 3: 53.8 / 113."""
     window: int = 34
-    """Frames of motion history the descriptor covers (current frame included)."""
+    """Frames of motion history the descriptor covers (current frame included). ``ours``
+    reads at most ``2 * max(ACCELERATION_LAGS)`` and ``max(TURN_LAGS)`` samples back
+    (:mod:`~training.joint2coarse.body_model`: 16 samples, 32 frames at ``stride`` 2), so
+    beyond 34 frames the window only sets the shortest motion it accepts (on the quick project's
+    validation motions, ``--set window=50`` gave the preset's figures to the digit at seeds 0
+    to 2: README, "Chosen again on the converged ground truth")."""
     stride: int = 2
     """Sample every ``stride``-th frame of the window: ``ceil(window / stride)`` samples
     (34 / 2 = 17 samples x 19 joints x 3 = the paper's 969 inputs)."""
