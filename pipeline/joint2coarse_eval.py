@@ -226,10 +226,11 @@ def evaluate_on_motion(
         if motion.num_frames >= other.config.window:
             pred_other = predict_proxy(other, joints, root_rot, source=source)
             compare[other.config.model] = asdict(vertex_errors(pred_other, reference.positions))
-    floor_mm = None
+    floor_mm = floor_seconds = None
     if floor:
         moved = simulate_cached(project, config, motion, log, cache_root, FLOOR_PERTURBATION_M)[0]
         floor_mm = asdict(vertex_errors(moved.positions, reference.positions))
+        floor_seconds = errors_per_second(moved.positions, reference.positions, motion.fps)
     return {
         "project": str(project.root),
         "model": net.config.model,
@@ -253,6 +254,7 @@ def evaluate_on_motion(
         },
         "compare_error_mm": compare,
         "simulation_floor_mm": floor_mm,
+        "simulation_floor_mm_per_second": floor_seconds,
         "simulation_cache": str(folder),
         "simulation_from_cache": cached,
     }
@@ -328,6 +330,11 @@ def format_report(report: dict) -> str:
             + " ".join(f"{w['mean_mm']:.0f}" for w in seconds)
             + f"; the worst from {worst['start_s']:.1f} s (p95 {worst['p95_mm']:.0f} mm)"
         )
+        if report.get("simulation_floor_mm_per_second"):
+            lines.append(
+                "the floor each second (mm):  "
+                + " ".join(f"{w['mean_mm']:.0f}" for w in report["simulation_floor_mm_per_second"])
+            )
     lines.append(
         f"streaming (one frame at a time): {ms['prediction_streaming']:.2f} ms/frame; simulation "
         f"{'from the cache' if report['simulation_from_cache'] else 'cached'} in "

@@ -82,6 +82,7 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     assert all(w in out for w in ("Joint2Coarse", "pushed out", "simulation", "mean mm"))
     assert "mean error each second (mm)" in out and "the worst from" in out
     assert again["simulation_floor_mm"] is None and "moved 10 um" not in out
+    assert again["simulation_floor_mm_per_second"] is None and "floor each second" not in out
     # --floor: the simulation again on the proxy moved 10 um, cached beside the first.
     code, out, err = dng(*args, "--floor", "--json")
     floored = json.loads(out)
@@ -90,8 +91,11 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     assert 0 < f["mean_mm"] <= f["p95_mm"] <= f["max_mm"] < 1e3
     assert floored["error_mm"] == report["error_mm"]
     assert len([p for p in scratch.rglob("cache.npz")]) == 2
+    floor_seconds = floored["simulation_floor_mm_per_second"]
+    assert [w["start_s"] for w in floor_seconds] == [0.0, 1.0]
+    assert max(w["max_mm"] for w in floor_seconds) == f["max_mm"]
     code, out, _ = dng(*args, "--floor")
-    assert code == 0 and "simulation, proxy moved 10 um" in out
+    assert code == 0 and "simulation, proxy moved 10 um" in out and "floor each second" in out
 
 
 def test_eval_joint2coarse_on_capture(smoke_project, scratch, dng, bvh_dir):
