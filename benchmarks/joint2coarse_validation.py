@@ -104,6 +104,11 @@ def main() -> None:
     changes = dict(parse_setting(item) for item in args.overrides)
     config = replace(config, joint2coarse_overrides={**config.joint2coarse_overrides, **changes})
     cfg = joint2coarse_config(config)
+    if args.long_lags and cfg.num_samples <= max(body_model.TURN_LAGS):
+        ap.error(
+            f"--long-lags reads {max(body_model.TURN_LAGS)} samples back: the window of "
+            f"{cfg.window} frames holds {cfg.num_samples} (give e.g. --set window=66)"
+        )
     splits = joint2coarse_splits(config)
     left_out = [n for n in splits["train"] if any(fnmatch.fnmatch(n, p) for p in args.without)]
     if args.without and not left_out:

@@ -113,8 +113,8 @@ class Joint2CoarseConfig(PlainConfig):
     3: 71.5 / 172; at ridge 30, 1: 53.7 / 112, 3: 53.8 / 113."""
     window: int = 34
     """Frames of motion history the descriptor covers (current frame included). ``ours``
-    reads at most ``2 * max(ACCELERATION_LAGS)`` and ``max(TURN_LAGS)`` samples back
-    (:mod:`~training.joint2coarse.body_model`: 16 samples, 32 frames at ``stride`` 2), so
+    reads back as far as its longest lag (:mod:`~training.joint2coarse.body_model`'s
+    ``TURN_LAGS``: 16 samples, 32 frames at ``stride`` 2), so
     beyond 34 frames the window only sets the shortest motion it accepts (on the quick project's
     validation motions, ``--set window=50`` gave the preset's figures to the digit at seeds 0
     to 2: README, "Chosen again on the converged ground truth")."""
