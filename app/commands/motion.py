@@ -1,4 +1,5 @@
-"""``dng motion``: inspect BVH files, make procedural clips, retarget onto the mannequin."""
+"""``dng motion``: inspect motion files (BVH, glTF/GLB, DeepMimic), make procedural clips,
+retarget onto the mannequin."""
 
 from __future__ import annotations
 
@@ -17,17 +18,15 @@ from core.motion.retarget import retarget
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "motion",
-        help="inspect, make and retarget body motion (BVH, glTF/GLB in)",
-        description="Body motion: BVH and skinned glTF/GLB import (any rig, units, up axis), "
-        "procedural clips, retargeting onto the mannequin.",
+        help="inspect, make and retarget body motion (BVH, glTF/GLB, DeepMimic in)",
+        description="Body motion: BVH, skinned glTF/GLB and DeepMimic (.txt/.json) import (any "
+        "rig, units, up axis), procedural clips, retargeting onto the mannequin.",
     )
     sub = parser.add_subparsers(dest="motion_command", metavar="ACTION")
     sub.required = True
 
-    info = sub.add_parser(
-        "info", help="what a BVH or glTF file holds, mapped onto the canonical joints"
-    )
-    info.add_argument("file", help="BVH file, or a skinned .gltf/.glb with an animation")
+    info = sub.add_parser("info", help="what a motion file holds, mapped onto the canonical joints")
+    info.add_argument("file", help=_FILE_HELP)
     info.add_argument("--json", action="store_true", help="print JSON instead of text")
     _add_import_options(info)
     info.set_defaults(handler=_info)
@@ -41,13 +40,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_shape_option(make)
     make.set_defaults(handler=_make)
 
-    retarget = sub.add_parser("retarget", help="retarget a BVH or glTF clip onto the mannequin")
-    retarget.add_argument("file", help="BVH file, or a skinned .gltf/.glb with an animation")
+    retarget = sub.add_parser("retarget", help="retarget a motion file onto the mannequin")
+    retarget.add_argument("file", help=_FILE_HELP)
     retarget.add_argument("--out", required=True, help="BVH file to write")
     retarget.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
     _add_shape_option(retarget)
     _add_import_options(retarget)
     retarget.set_defaults(handler=_retarget)
+
+
+_FILE_HELP = (
+    "BVH file, a skinned .gltf/.glb with an animation, or a DeepMimic motion (.txt/.json, as "
+    "pybullet_data/data/motions holds)"
+)
 
 
 def _add_import_options(p: argparse.ArgumentParser) -> None:
@@ -56,6 +61,14 @@ def _add_import_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--scale", type=float, default=None, help="metres per file unit (overrides detection)"
+    )
+    p.add_argument(
+        "--repeat",
+        type=int,
+        default=1,
+        metavar="N",
+        help="play a looping DeepMimic clip ('Loop': 'wrap') N times, each from where the last "
+        "ended (default 1)",
     )
 
 
@@ -72,7 +85,7 @@ def _add_shape_option(p: argparse.ArgumentParser) -> None:
 def _info(args: argparse.Namespace) -> int:
     from core.motion.load import load_motion, motion_info
 
-    motion = load_motion(args.file, scale=args.scale, mapping=args.mapping)
+    motion = load_motion(args.file, scale=args.scale, mapping=args.mapping, repeat=args.repeat)
     info = motion_info(motion)
     info["file"] = str(args.file)
     if args.json:
@@ -109,6 +122,12 @@ def format_info(info: dict) -> str:
         lines.append(
             f"note: wrapper joints above the root folded into it: {', '.join(info['wrapper_joints'])}"
         )
+    if info.get("deepmimic"):
+        dm = info["deepmimic"]
+        lines.append(
+            f"note: DeepMimic humanoid, loop {dm['loop']}"
+            + (f", played {dm['repeat']} times" if dm["repeat"] > 1 else "")
+        )
     lines.append("source joints:   " + ", ".join(info["source_joints"]))
     return "\n".join(lines)
 
@@ -132,7 +151,9 @@ def _retarget(args: argparse.Namespace) -> int:
     from core.motion.load import load_motion
 
     shape = BodyShape.parse(args.shape)
-    motion = load_motion(args.file, fps=args.fps, scale=args.scale, mapping=args.mapping)
+    motion = load_motion(
+        args.file, fps=args.fps, scale=args.scale, mapping=args.mapping, repeat=args.repeat
+    )
     positions = canonical_positions(motion)
 
     out = retarget(positions, motion.fps, shape, name=motion.name)

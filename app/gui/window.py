@@ -497,7 +497,7 @@ class StudioWindow:
         self._file_dialog(
             gui.FileDialog.OPEN,
             "Open a motion",
-            [(".bvh .glb .gltf", "motion (BVH, glTF)")],
+            [(".bvh .glb .gltf .txt .json", "motion (BVH, glTF, DeepMimic)")],
             self.studio.motion_tab.load_motion,
         )
 

@@ -1,8 +1,11 @@
-"""Loading a BVH or glTF file as a normalised :class:`Motion`: metres, Y up, mapped, resampled.
+"""Loading a BVH, glTF or DeepMimic file as a normalised :class:`Motion`: metres, Y up, mapped,
+resampled.
 
 A ``.gltf``/``.glb`` file's skeleton animation (:mod:`core.motion.gltf`) is metres and Y up by
-the glTF specification: no unit or up-axis detection, unless ``scale``/``up_axis`` say otherwise.
-The rest of this docstring is about BVH files, which carry neither.
+the glTF specification, and so is a DeepMimic motion (``.txt``/``.json``,
+:mod:`core.motion.deepmimic`) by its own: no unit or up-axis detection for either, unless
+``scale``/``up_axis`` say otherwise. The rest of this docstring is about BVH files, which carry
+neither.
 
 Units and up axis come from the rest skeleton (the first frame when the rest pose is not
 upright): the up axis is the one the head sits above the feet along (``y`` or ``z``), and the
@@ -23,6 +26,7 @@ import numpy as np
 from core.constants import CM_M, CMU_UNIT_M, INCH_M
 from core.errors import InputError
 from core.motion.bvh import clip_to_motion, read_bvh
+from core.motion.deepmimic import DEEPMIMIC_SUFFIXES, read_deepmimic
 from core.motion.gltf import GLTF_SUFFIXES, gltf_to_motion
 from core.motion.mapping import JointMapping, map_skeleton, read_mapping_file
 from core.motion.motion import Motion
@@ -40,7 +44,7 @@ ASSUMED_HEIGHT_M = 1.70
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 _AXES = {"y": 1, "z": 2}
 #: Motion files :func:`load_motion` reads (any other name is read as BVH).
-MOTION_FILE_SUFFIXES: tuple[str, ...] = (".bvh", *GLTF_SUFFIXES)
+MOTION_FILE_SUFFIXES: tuple[str, ...] = (".bvh", *GLTF_SUFFIXES, *DEEPMIMIC_SUFFIXES)
 
 
 def load_motion(
@@ -50,16 +54,21 @@ def load_motion(
     scale: float | None = None,
     mapping: str | os.PathLike | dict[str, str] | None = None,
     up_axis: str | None = None,
+    repeat: int = 1,
 ) -> Motion:
-    """Read a BVH or a skinned glTF/GLB file as a Motion in metres, Y up, right-handed.
+    """Read a BVH, a skinned glTF/GLB or a DeepMimic file as a Motion in metres, Y up,
+    right-handed.
 
     Parameters
     ----------
-    path : the BVH file, or a ``.gltf``/``.glb`` with a skin and an animation
+    path : the BVH file, a ``.gltf``/``.glb`` with a skin and an animation, or a DeepMimic
+        motion (``.txt``/``.json``)
     fps : resample to this frame rate (same duration), optional
     scale : metres per file unit, overriding the detected unit
     mapping : a mapping file path or ``{canonical: source}`` dict for rigs the matcher misses
     up_axis : ``"y"`` or ``"z"``, overriding the detected up axis
+    repeat : play a looping DeepMimic clip (``"Loop": "wrap"``) this many times
+        (:func:`~core.motion.deepmimic.read_deepmimic`); other files accept only 1
 
     Returns
     -------
@@ -88,22 +97,31 @@ def load_motion(
         mapping_path = os.fspath(mapping)
         user = read_mapping_file(mapping_path)
 
-    is_gltf = Path(path).suffix.lower() in GLTF_SUFFIXES
+    suffix = Path(path).suffix.lower()
+    is_gltf = suffix in GLTF_SUFFIXES
+    is_deepmimic = suffix in DEEPMIMIC_SUFFIXES
+    metric = is_gltf or is_deepmimic  # metres and Y up by their formats
+    if repeat != 1 and not is_deepmimic:
+        raise InputError(
+            f"repeat={repeat!r}: only a looping DeepMimic clip (.txt/.json) is repeated", path
+        )
     if is_gltf:  # sampled at fps directly: no second resampling below
         raw = gltf_to_motion(path, fps=fps)
+    elif is_deepmimic:
+        raw = read_deepmimic(path, repeat=repeat)
     else:
         raw = clip_to_motion(read_bvh(path), name=Path(path).stem, path=path)
     joint_mapping = map_skeleton(raw.skeleton, user, path=path, mapping_path=mapping_path)
-    detected_up = "y" if is_gltf else detect_up_axis(raw, joint_mapping)
+    detected_up = "y" if metric else detect_up_axis(raw, joint_mapping)
     up = up_axis or detected_up
     motion = z_up_to_y_up(raw) if up == "z" else raw
     height_units = standing_height(motion, joint_mapping)
-    if not height_units > 0 and not is_gltf:
+    if not height_units > 0 and not metric:
         raise InputError("cannot measure the standing height: head is not above the feet", path)
     if scale is not None:
         unit = next((n for n, s in KNOWN_UNITS.items() if math.isclose(s, scale)), "user")
         unit_scale = float(scale)
-    elif is_gltf:
+    elif metric:
         unit, unit_scale = "m", 1.0
     else:
         unit, unit_scale = detect_unit(height_units)
@@ -358,4 +376,9 @@ def motion_info(motion: Motion) -> dict:
         "root_displacement_m": net,
         "varying_translations_m": motion.meta.get("varying_translations", {}),
         "wrapper_joints": motion.meta.get("wrapper_joints", []),
+        "deepmimic": (
+            {"loop": motion.meta["loop"], "repeat": motion.meta["repeat"]}
+            if "deepmimic_joints" in motion.meta
+            else None
+        ),
     }
