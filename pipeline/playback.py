@@ -63,8 +63,8 @@ def load_motion_for(
     ----------
     project : core.project.Project or a folder path
     path_or_kind : str or path
-        In this order: an existing BVH or glTF/GLB file (any rig: resampled to the project's
-        fps and retargeted onto its body); the name of a motion of the project
+        In this order: an existing BVH, glTF/GLB or DeepMimic file (any rig: resampled to the
+        project's fps and retargeted onto its body); the name of a motion of the project
         (``motions/NAME.bvh``, e.g. the training motion ``dance``); a procedural kind
         (:data:`core.motion.procedural.PROCEDURAL_KINDS`) made on the project's body.
     frames : int, optional

@@ -24,6 +24,17 @@ def pytest_collection_modifyitems(config, items):
 
 
 @pytest.fixture(scope="session")
+def deepmimic_dir() -> Path:
+    """pybullet's DeepMimic motion capture (``pybullet_data/data/motions``); pybullet is a dev
+    dependency: missing, it is a setup error, not a skip."""
+    try:
+        import pybullet_data
+    except ImportError:
+        pytest.fail("pybullet missing: run ./studio setup (it ships DeepMimic's motion capture)")
+    return Path(pybullet_data.getDataPath()) / "data" / "motions"
+
+
+@pytest.fixture(scope="session")
 def bvh_dir() -> Path:
     """The CMU motion-capture folder; a missing package is a setup error, not a skip."""
     if not (CMU_BVH_DIR / "01_01.bvh").is_file():

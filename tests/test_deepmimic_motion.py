@@ -9,7 +9,6 @@ dancing, spinning). A missing pybullet is a setup error, not a skip.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,15 +30,6 @@ from core.skeleton import forward_kinematics
 BALLS = {"Chest": 8, "Neck": 12, "RightUpLeg": 16, "RightFoot": 21, "RightArm": 25,
          "LeftUpLeg": 30, "LeftFoot": 35, "LeftArm": 39}  # fmt: skip
 HINGES = {"RightLeg": 20, "RightForeArm": 29, "LeftLeg": 34, "LeftForeArm": 43}
-
-
-@pytest.fixture(scope="module")
-def motions_dir() -> Path:
-    try:
-        import pybullet_data
-    except ImportError:
-        pytest.fail("pybullet missing: run ./studio setup (it ships DeepMimic's motion capture)")
-    return Path(pybullet_data.getDataPath()) / "data" / "motions"
 
 
 def _known_clip(t: int = 12, seed: int = 0) -> tuple[dict, np.ndarray, np.ndarray]:
@@ -99,11 +89,11 @@ def test_uneven_keyframes_are_resampled_at_their_median_rate(tmp_path):
     np.testing.assert_allclose(m.rotations[3, chest], mid.as_matrix(), atol=1e-5)
 
 
-def test_real_walk_is_a_walk(motions_dir):
+def test_real_walk_is_a_walk(deepmimic_dir):
     """pybullet's walk: 30 fps, mapped onto the canonical joints, a 1.6 m person walking forward
     at about 1 m/s with the knees bent forwards and the feet at the floor (so the quaternion
     order, the hinges' axis and sign and the skeleton's offsets are DeepMimic's)."""
-    m = load_motion(motions_dir / "humanoid3d_walk.txt")
+    m = load_motion(deepmimic_dir / "humanoid3d_walk.txt")
     assert (m.num_frames, m.fps, m.meta["unit"], m.meta["up_axis"]) == (39, 30.0, "m", "y")
     assert 1.55 < m.meta["standing_height_m"] < 1.7
     p = canonical_positions(m)  # (T, 20, 3) in MAPPED_JOINTS order
@@ -121,9 +111,9 @@ def test_real_walk_is_a_walk(motions_dir):
 
 
 @pytest.mark.parametrize("clip", ["walk", "run", "spin", "dance_a"])
-def test_a_loop_played_again_continues_where_it_ended(motions_dir, clip):
-    one = read_deepmimic(motions_dir / f"humanoid3d_{clip}.txt")
-    three = read_deepmimic(motions_dir / f"humanoid3d_{clip}.txt", repeat=3)
+def test_a_loop_played_again_continues_where_it_ended(deepmimic_dir, clip):
+    one = read_deepmimic(deepmimic_dir / f"humanoid3d_{clip}.txt")
+    three = read_deepmimic(deepmimic_dir / f"humanoid3d_{clip}.txt", repeat=3)
     t = one.num_frames
     assert three.num_frames == 3 * (t - 1) + 1 and three.meta["repeat"] == 3
     np.testing.assert_allclose(three.joint_positions()[:t], one.joint_positions(), atol=1e-6)
@@ -134,8 +124,8 @@ def test_a_loop_played_again_continues_where_it_ended(motions_dir, clip):
     np.testing.assert_allclose(heights[t - 1 : 2 * t - 1], one.root_positions[:, 1], atol=1e-6)
 
 
-def test_every_real_clip_reads(motions_dir):
-    clips = sorted(motions_dir.glob("humanoid3d_*.txt"))
+def test_every_real_clip_reads(deepmimic_dir):
+    clips = sorted(deepmimic_dir.glob("humanoid3d_*.txt"))
     assert len(clips) >= 10
     for path in clips:
         m = load_motion(path)
@@ -218,17 +208,17 @@ def test_bad_input_exit_2_one_line_nothing_written(dng, tmp_path, kind, action):
     assert not out_path.exists() and not (tmp_path / "out").exists()
 
 
-def test_repeat_only_for_a_looping_clip(tmp_path, motions_dir, bvh_dir):
+def test_repeat_only_for_a_looping_clip(tmp_path, deepmimic_dir, bvh_dir):
     with pytest.raises(InputError, match="does not loop"):
-        read_deepmimic(motions_dir / "humanoid3d_kick.txt", repeat=2)
+        read_deepmimic(deepmimic_dir / "humanoid3d_kick.txt", repeat=2)
     with pytest.raises(InputError, match="only a looping DeepMimic clip"):
         load_motion(bvh_dir / "01_01.bvh", repeat=2)
     with pytest.raises(InputError, match="whole number >= 1"):
-        read_deepmimic(motions_dir / "humanoid3d_walk.txt", repeat=0)
+        read_deepmimic(deepmimic_dir / "humanoid3d_walk.txt", repeat=0)
 
 
-def test_cli_info_and_retarget(dng, tmp_path, motions_dir):
-    walk = motions_dir / "humanoid3d_walk.txt"
+def test_cli_info_and_retarget(dng, tmp_path, deepmimic_dir):
+    walk = deepmimic_dir / "humanoid3d_walk.txt"
     code, out, err = dng("motion", "info", walk, "--repeat", "3", "--json")
     assert code == 0 and not err
     info = json.loads(out)

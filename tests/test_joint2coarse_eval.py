@@ -109,6 +109,17 @@ def test_eval_joint2coarse_on_capture(smoke_project, scratch, dng, bvh_dir):
     assert report["frames"] == 34 and np.isfinite(report["error_mm"]["mean_mm"])
 
 
+def test_eval_joint2coarse_on_a_deepmimic_capture(smoke_project, scratch, dng, deepmimic_dir):
+    """A DeepMimic file goes straight in (60 fps keyframes, resampled to the project's fps)."""
+    clip = deepmimic_dir / "humanoid3d_dance_b.txt"
+    code, out, err = dng(
+        "eval", "joint2coarse", smoke_project, "--motion", clip, "--frames", 34, "--json"
+    )
+    assert code == 0, err
+    report = json.loads(out)
+    assert report["frames"] == 34 and np.isfinite(report["error_mm"]["mean_mm"])
+
+
 def test_eval_joint2coarse_refuses_bad_input(smoke_project, scratch, dng, tmp_path):
     bad = tmp_path / "bad.bvh"
     bad.write_text("HIERARCHY\nROOT Hips\n{\n")
@@ -118,6 +129,10 @@ def test_eval_joint2coarse_refuses_bad_input(smoke_project, scratch, dng, tmp_pa
     assert code == 2 and "window" in err and len(err.strip().splitlines()) == 1
     code, _, err = dng("eval", "joint2coarse", smoke_project, "--motion", tmp_path / "none.bvh")
     assert code == 2 and "none.bvh" in err
+    short = tmp_path / "short.txt"
+    short.write_text('{"Loop": "none", "Frames": [[0.1, 1, 2]]}')
+    code, _, err = dng("eval", "joint2coarse", smoke_project, "--motion", short)
+    assert code == 2 and str(short) in err and "has 3 values" in err
     # A project with no trained Joint2Coarse (a copy without it: the shared one stays as it is).
     bare = tmp_path / "bare"
     bare.mkdir()

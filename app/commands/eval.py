@@ -49,7 +49,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or ~/.cache/garment-studio), run Joint2Coarse on it and report vertex error (mean, "
         "p95, max, mm), body penetration and ms per frame of both",
     )
-    j.add_argument("--motion", metavar="FILE.bvh|KIND", help="a BVH file or a procedural kind")
+    j.add_argument(
+        "--motion",
+        metavar="FILE|KIND",
+        help="a motion file (BVH, glTF/GLB, DeepMimic .txt) or a procedural kind",
+    )
     j.add_argument("--frames", type=int, help="frames to keep (default: all; 150 of a kind)")
     j.add_argument("--start-s", type=float, default=0.0, help="seconds of the file to skip")
     j.add_argument("--seed", type=int, default=0, help="seed of a procedural kind")

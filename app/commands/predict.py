@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     x.add_argument("project", help="project folder with a trained joint2coarse/")
-    x.add_argument("--motion", required=True, help="BVH or glTF/GLB file")
+    x.add_argument("--motion", required=True, help="BVH, glTF/GLB or DeepMimic (.txt) file")
     x.add_argument(
         "--out", required=True, help="cache to write (.npz, .pc2, .mdd, .usd, .usda or a folder)"
     )

@@ -67,7 +67,8 @@ def register(subparsers) -> None:
     )
     p.add_argument("--garment", required=True, help="garment mesh file or built-in garment name")
     p.add_argument(
-        "--motion", help="BVH or glTF/GLB file, or a procedural kind (dance, twirl, walk...)"
+        "--motion",
+        help="BVH, glTF/GLB or DeepMimic (.txt) file, or a procedural kind (dance, twirl, walk...)",
     )
     p.add_argument("--import", dest="import_from", metavar="CACHE", help="import this cache")
     p.add_argument(
