@@ -144,7 +144,23 @@ def test_broad_jump_goes_further_and_leans_into_it():
     assert lean["broad-jump"] > lean["jump"] + 10.0, lean
 
 
-@pytest.mark.parametrize("kind", ("walk", "circle-walk"))
+def test_run_flies_between_steps():
+    """``run``: 2.5 to 3.4 m/s, each foot on the floor about a third of the time, both in the air
+    between steps, the root higher in those flights than on the floor (its bounce is planned to
+    fall at g mid-flight, then trimmed where a leg could not reach its foot: not ballistic)."""
+    m, pos, _ = clip("run")
+    low = feet("run")[..., 1].min(2)  # (T, 2)
+    on = (low < CONTACT).mean(0)
+    assert ((on > 0.3) & (on < 0.5)).all(), on
+    flying = (low > CONTACT).all(1)
+    assert 0.1 < flying.mean() < 0.35, flying.mean()
+    root = pos[:, 0]
+    speed = np.linalg.norm(root[-1, [0, 2]] - root[0, [0, 2]]) / m.duration
+    assert 2.4 < speed < 3.5, speed
+    assert root[flying, 1].mean() > root[~flying, 1].mean() + 0.01
+
+
+@pytest.mark.parametrize("kind", ("walk", "circle-walk", "run"))
 def test_walk_stance_feet_do_not_slide(kind):
     """A heel or toe touching the floor stays where it touched down (within 2 cm)."""
     f = feet(kind)

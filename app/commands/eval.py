@@ -1,6 +1,6 @@
 """``dng eval PROJECT [--json]``: score the renderer and the baselines on unseen motions.
 
-``dng eval joint2coarse PROJECT --motion FILE.bvh|KIND [--frames N] [--start-s S] [--json]``:
+``dng eval joint2coarse PROJECT --motion FILE|KIND [--frames N] [--start-s S] [--json]``:
 Joint2Coarse against the simulation on any motion."""
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 def run_joint2coarse(args: argparse.Namespace) -> int:
 
     if args.motion is None:
-        raise InputError("dng eval joint2coarse needs --motion FILE.bvh or a procedural kind")
+        raise InputError("dng eval joint2coarse needs --motion FILE or a procedural kind")
     project = Project(args.j2c_project)
     config = project_config(project)
     log = (lambda message: print(message, file=sys.stderr, flush=True)) if args.json else print

@@ -1,4 +1,5 @@
-"""Procedural clips on the mannequin: dance, twirl, walk, circle-walk, idle, jump, broad-jump.
+"""Procedural clips on the mannequin: dance, twirl, walk, circle-walk, idle, jump, broad-jump,
+run.
 
 Every clip is a function of time in seconds, evaluated at the frame times, so the same seed
 describes the same motion at any frame rate and any clip length (a longer clip extends a shorter
@@ -42,7 +43,7 @@ from core.skeleton import Skeleton
 
 #: The kinds :func:`make_motion` knows.
 PROCEDURAL_KINDS: tuple[str, ...] = (
-    "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump",
+    "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump", "run",
 )  # fmt: skip
 
 _X, _Y, _Z = np.eye(3)
@@ -221,6 +222,7 @@ def _feet(
     toe_off: float = 0.0,
     plant_at: float = 0.5,
     pivot: bool = False,
+    early: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ankle targets and foot pitch from a step schedule.
 
@@ -235,6 +237,8 @@ def _feet(
     plant_at : where in its stance (0..1) the body passes over a foothold.
     pivot : planted feet turn about the ankle with the body (spins) instead of keeping the
         heading they landed with.
+    early : the swing's progress runs as ``u ** early`` of its time u: under 1 the foot leaves
+        the floor and comes forward early in its swing (a run's trailing foot).
     Returns ankles (T, 2, 3), foot pitch (T, 2) (> 0: toes down) and foot yaw (T, 2).
     """
     toe = body.skel.end_sites[body.skel.index("LeftFoot")].astype(np.float64)
@@ -275,7 +279,7 @@ def _feet(
             j = i[in_swing]
             ts = t[in_swing]
             t0, t1 = sw[j, 0], sw[j, 1]
-            u = (ts - t0) / (t1 - t0)
+            u = ((ts - t0) / (t1 - t0)) ** early
             s, b = _quintic(u)[:, None], _bump(u)
             p0, p1 = hold[j], hold[j + 1]
             if toe_off:
@@ -381,11 +385,70 @@ def _plan_idle(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     )  # fmt: skip
 
 
-def _plan_walk(t: np.ndarray, rng: Streams, body: _Body, circle: bool) -> _Plan:
+@dataclass(frozen=True)
+class _Gait:
+    """How a walk or a run moves (ranges are drawn per clip; lengths for a 1.70 m body).
+
+    step, period : step length (m) and stride period (s, two steps); speed = 2 step / period
+    duty : how long each foot swings, in half strides: under 1 the feet share the floor (a
+        walk), over 1 both are in the air between steps (a run's flight)
+    lift : peak ankle lift in a swing (m); pitch_amp, toe_off : the swing's toe-down / toe-up
+        and the heel rise at the end of a stance (degrees); plant_at : where in its stance the
+        body passes over a foothold
+    sink : how far the root rides below its standing height (m); flights : the root bounces
+        twice a stride, highest mid-flight, planned to fall at g there (then trimmed where a leg
+        could not reach its foot, as every root height is), else it keeps one height
+    sway : side-to-side shift of the hips over the stance foot (m); hip_yaw : the pelvis's turn
+        with the stride (degrees); lean : forward pitch (degrees); arm_amp : the arms' forward
+        swing (degrees, drawn); upper : ranges of the upper body's other signals (degrees);
+        early : how early in its swing a foot comes up and forward (``_feet``)
+    """
+
+    step: tuple[float, float]
+    period: tuple[float, float]
+    duty: float
+    lift: tuple[float, float]
+    pitch_amp: float
+    toe_off: float
+    plant_at: float
+    sink: float
+    flights: bool
+    sway: float
+    hip_yaw: float
+    lean: float
+    arm_amp: tuple[float, float]
+    upper: dict
+    early: float = 1.0
+
+
+_WALK = _Gait(
+    step=(0.5, 0.62), period=(1.0, 1.2), duty=0.8, lift=(0.07, 0.11), pitch_amp=15.0,
+    toe_off=25.0, plant_at=0.42, sink=0.03, flights=False, sway=0.022, hip_yaw=5.0, lean=3.0,
+    arm_amp=(15, 30),
+    upper={"l_clav": (-2, 4), "r_clav": (-2, 4), "l_abd": (-32, -20), "r_abd": (-32, -20),
+           "l_twist": (-10, 10), "r_twist": (-10, 10), "l_elbow": (10, 30), "r_elbow": (10, 30),
+           "nbend": (-5, 8), "nside": (-4, 4), "ntwist": (-15, 15), "bend": (0, 6)},
+)  # fmt: skip
+#: A jog to a run: 2.5 to 3.4 m/s, each foot on the floor about a third of the stride and landing
+#: a little ahead of the body, elbows bent and pumping, the body leaning into it.
+_RUN = _Gait(
+    step=(0.9, 1.1), period=(0.64, 0.72), duty=1.3, lift=(0.22, 0.32), pitch_amp=25.0,
+    toe_off=30.0, plant_at=0.3, sink=0.05, flights=True, sway=0.012, hip_yaw=8.0, lean=9.0,
+    arm_amp=(30, 45),
+    upper={"l_clav": (0, 6), "r_clav": (0, 6), "l_abd": (-25, -12), "r_abd": (-25, -12),
+           "l_twist": (-10, 10), "r_twist": (-10, 10), "l_elbow": (70, 100),
+           "r_elbow": (70, 100), "nbend": (-8, 4), "nside": (-4, 4), "ntwist": (-10, 10),
+           "bend": (2, 8)},
+)  # fmt: skip
+
+
+def _plan_walk(
+    t: np.ndarray, rng: Streams, body: _Body, circle: bool, gait: _Gait = _WALK
+) -> _Plan:
     r0 = rng(0)
     scale = body.height / 1.70
-    step = r0.uniform(0.5, 0.62) * scale
-    period = r0.uniform(1.0, 1.2)  # one stride: two steps
+    step = r0.uniform(*gait.step) * scale
+    period = r0.uniform(*gait.period)  # one stride: two steps
     speed = 2 * step / period
     psi0 = r0.uniform(-np.pi, np.pi)
     start = r0.uniform(-1.0, 1.0, 2)
@@ -415,38 +478,39 @@ def _plan_walk(t: np.ndarray, rng: Streams, body: _Body, circle: bool) -> _Plan:
         np.ceil((t[-1] + _MARGIN - phase0) / (0.5 * period)) + 1,
     )
     first = int(np.round((beats[0] - phase0) / (0.5 * period))) % 2
-    swings = _alternating(beats, 0.8, first)  # swing 40 % of the stride
+    swings = _alternating(beats, gait.duty, first)  # a walk's swing: 40 % of the stride
     n = [len(s) for s in swings]
-    lifts = [np.full(k, r0.uniform(0.07, 0.11) * scale) for k in n]
+    lifts = [np.full(k, r0.uniform(*gait.lift) * scale) for k in n]
     offs = [np.tile([width, 0.0], (n[0] + 1, 1)), np.tile([-width, 0.0], (n[1] + 1, 1))]
     ankles, fpitch, fyaw = _feet(
-        t, swings, offs, lifts, center, psi, body, 15 * _DEG, 25 * _DEG, 0.42
-    )
-    # Stride phase w: the left foot swings for w in [0, 0.8 pi] (mod 2 pi), the right one for
-    # [pi, 1.8 pi]. The hips sway over the stance foot (left mid-stance at w = 1.4 pi); an arm
-    # is furthest forward when the opposite foot lands (right foot at w = 1.8 pi).
+        t, swings, offs, lifts, center, psi, body, gait.pitch_amp * _DEG, gait.toe_off * _DEG,
+        gait.plant_at, early=gait.early,
+    )  # fmt: skip
+    # Stride phase w: the left foot swings for w in [0, duty pi] (mod 2 pi), the right one for
+    # [pi, (1 + duty) pi]. The hips sway over the stance foot (left mid-stance at w = (1 + duty
+    # / 2) pi); an arm is furthest forward when the opposite foot lands (the right foot at w =
+    # (1 + duty) pi). A run's flights are centred on w = (duty - 1) pi / 2 and pi later.
     w = 2 * np.pi * (t - phase0) / period
-    sway = 0.022 * scale * np.cos(w - 1.4 * np.pi)
+    sway = gait.sway * scale * np.cos(w - (1 + 0.5 * gait.duty) * np.pi)
     p = psi(t)
     left = np.stack([np.cos(p), -np.sin(p)], -1)
     xz = center(t) + sway[:, None] * left
-    arm_swing = np.cos(w - 1.8 * np.pi)
-    s = _upper_signals(
-        rng(2), t, 0.1, 0.5,
-        {"l_clav": (-2, 4), "r_clav": (-2, 4), "l_abd": (-32, -20), "r_abd": (-32, -20),
-         "l_twist": (-10, 10), "r_twist": (-10, 10), "l_elbow": (10, 30), "r_elbow": (10, 30),
-         "nbend": (-5, 8), "nside": (-4, 4), "ntwist": (-15, 15), "bend": (0, 6)},
-    )  # fmt: skip
-    amp = rng(3).uniform(15, 30)
+    arm_swing = np.cos(w - (1 + gait.duty) * np.pi)
+    s = _upper_signals(rng(2), t, 0.1, 0.5, gait.upper)
+    amp = rng(3).uniform(*gait.arm_amp)
     s["l_flex"] = amp * arm_swing + 5
     s["r_flex"] = -amp * arm_swing + 5
     lean = 0.0 if not circle else -turn * np.arctan(speed**2 / (radius * GRAVITY)) / _DEG
     zeros = np.zeros_like(t)
     spine = np.stack([s["bend"], zeros + 0.6 * lean, -6 * arm_swing], -1) * _DEG
+    root_y = np.full_like(t, body.root_y - gait.sink * scale)
+    if gait.flights:  # two bounces a stride, highest mid-flight, falling at g there
+        omega = 2 * (2 * np.pi / period)
+        root_y += GRAVITY / omega**2 * np.cos(2 * (w - 0.5 * (gait.duty - 1) * np.pi))
     return _Plan(
-        root_xz=xz, root_y=np.full_like(t, body.root_y - 0.03 * scale), yaw=p - 5 * _DEG * arm_swing,
-        pitch=np.full_like(t, 3 * _DEG), roll=(lean + 3 * np.cos(w)) * _DEG, ankles=ankles,
-        foot_yaw=fyaw, foot_pitch=fpitch, spine=spine,
+        root_xz=xz, root_y=root_y, yaw=p - gait.hip_yaw * _DEG * arm_swing,
+        pitch=np.full_like(t, gait.lean * _DEG), roll=(lean + 3 * np.cos(w)) * _DEG,
+        ankles=ankles, foot_yaw=fyaw, foot_pitch=fpitch, spine=spine,
         neck=np.stack([s["nbend"], s["nside"], s["ntwist"]], -1) * _DEG, arms=_arms_from(s),
     )  # fmt: skip
 
@@ -723,6 +787,7 @@ _PLANNERS = {
     "idle": _plan_idle,
     "jump": _plan_jump,
     "broad-jump": lambda t, rng, body: _plan_jump(t, rng, body, "broad-jump"),
+    "run": lambda t, rng, body: _plan_walk(t, rng, body, circle=False, gait=_RUN),
 }
 assert tuple(_PLANNERS) == PROCEDURAL_KINDS
 
@@ -832,7 +897,8 @@ def make_motion(
         ``dance`` (steps, hip sway, spins, big arm swings: the default training motion),
         ``twirl`` (continuous spins in place, arms out), ``walk`` (straight), ``circle-walk``,
         ``idle`` (gentle sway, weight shifts), ``jump`` (crouch, take-off, flight, landing),
-        ``broad-jump`` (standing long jumps).
+        ``broad-jump`` (standing long jumps), ``run`` (a straight jog to run, 2.5 to 3.4 m/s,
+        with a flight between steps).
     frames : number of frames (>= 1)
     fps : frames per second (> 0); frame i is at time i / fps seconds
     seed : non-negative integer; the same seed gives the same motion at any fps and length
