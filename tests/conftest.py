@@ -61,6 +61,24 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(0)
 
 
+def assert_motion_file_refused(dng, folder: Path, path: Path, content, action: str, problem: str):
+    """``dng motion info|retarget`` on a bad motion file: ``content`` (str, bytes, or None for a
+    missing file) written to ``path``; exit 2, one line naming the file and ``problem``, and
+    nothing written (``retarget``'s output goes under ``folder / "out"``)."""
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    elif content is not None:
+        path.write_text(content)
+    out_path = folder / "out" / "x.bvh"
+    argv = ["info", path] if action == "info" else ["retarget", path, "--out", out_path]
+    code, out, err = dng("motion", *argv)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert str(path) in lines[0] and problem in lines[0], lines[0]
+    assert not out_path.exists() and not (folder / "out").exists()
+
+
 def assert_close(actual, expected, atol=1e-6, rtol=0.0, what="arrays"):
     """``np.allclose`` that says where the largest difference is (PyTorch3D style)."""
     actual, expected = np.asarray(actual, np.float64), np.asarray(expected, np.float64)

@@ -24,6 +24,7 @@ from core.motion.deepmimic import (
 from core.motion.load import load_motion
 from core.motion.mapping import MAPPED_JOINTS, canonical_positions
 from core.skeleton import forward_kinematics
+from tests.conftest import assert_motion_file_refused
 
 #: Keyframe columns of the ball joints' quaternions and the hinges' angles (the module's layout,
 #: written out again here from DeepMimic's documentation).
@@ -192,20 +193,9 @@ BAD = {
 @pytest.mark.parametrize("kind", sorted(BAD))
 @pytest.mark.parametrize("action", ["info", "retarget"])
 def test_bad_input_exit_2_one_line_nothing_written(dng, tmp_path, kind, action):
-    path = tmp_path / f"{kind}.txt"
     content = _bad(kind) if kind != "missing" else None
-    if isinstance(content, bytes):
-        path.write_bytes(content)
-    elif content is not None:
-        path.write_text(content)
-    out_path = tmp_path / "out" / "x.bvh"
-    argv = ["info", path] if action == "info" else ["retarget", path, "--out", out_path]
-    code, out, err = dng("motion", *argv)
-    assert code == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert str(path) in lines[0] and BAD[kind] in lines[0], lines[0]
-    assert not out_path.exists() and not (tmp_path / "out").exists()
+    path = tmp_path / f"{kind}.txt"
+    assert_motion_file_refused(dng, tmp_path, path, content, action, BAD[kind])
 
 
 def test_repeat_only_for_a_looping_clip(tmp_path, deepmimic_dir, bvh_dir):

@@ -12,6 +12,7 @@ from core.motion.bvh import write_bvh
 from core.motion.load import load_motion
 from core.motion.procedural import PROCEDURAL_KINDS
 from core.skeleton import CANONICAL_JOINTS
+from tests.conftest import assert_motion_file_refused
 from tests.data_bvh import cmu_as, tiny_bvh_text
 
 
@@ -150,20 +151,9 @@ BAD = {
 @pytest.mark.parametrize("kind", sorted(BAD))
 @pytest.mark.parametrize("action", ["info", "retarget"])
 def test_bad_input_exit_2_one_line_nothing_written(dng, tmp_path, kind, action):
-    path = tmp_path / f"{kind}.bvh"
     content = _break(kind) if kind != "missing" else None
-    if isinstance(content, bytes):
-        path.write_bytes(content)
-    elif content is not None:
-        path.write_text(content)
-    out_path = tmp_path / "out" / "x.bvh"
-    argv = ["info", path] if action == "info" else ["retarget", path, "--out", out_path]
-    code, out, err = dng("motion", *argv)
-    assert code == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert str(path) in lines[0] and BAD[kind] in lines[0], lines[0]
-    assert not out_path.exists() and not (tmp_path / "out").exists()
+    path = tmp_path / f"{kind}.bvh"
+    assert_motion_file_refused(dng, tmp_path, path, content, action, BAD[kind])
 
 
 def test_line_numbers_in_messages(dng, tmp_path):
