@@ -222,7 +222,6 @@ def _feet(
     toe_off: float = 0.0,
     plant_at: float = 0.5,
     pivot: bool = False,
-    early: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ankle targets and foot pitch from a step schedule.
 
@@ -237,8 +236,6 @@ def _feet(
     plant_at : where in its stance (0..1) the body passes over a foothold.
     pivot : planted feet turn about the ankle with the body (spins) instead of keeping the
         heading they landed with.
-    early : the swing's progress runs as ``u ** early`` of its time u: under 1 the foot leaves
-        the floor and comes forward early in its swing (a run's trailing foot).
     Returns ankles (T, 2, 3), foot pitch (T, 2) (> 0: toes down) and foot yaw (T, 2).
     """
     toe = body.skel.end_sites[body.skel.index("LeftFoot")].astype(np.float64)
@@ -279,7 +276,7 @@ def _feet(
             j = i[in_swing]
             ts = t[in_swing]
             t0, t1 = sw[j, 0], sw[j, 1]
-            u = ((ts - t0) / (t1 - t0)) ** early
+            u = (ts - t0) / (t1 - t0)
             s, b = _quintic(u)[:, None], _bump(u)
             p0, p1 = hold[j], hold[j + 1]
             if toe_off:
@@ -400,8 +397,7 @@ class _Gait:
         could not reach its foot, as every root height is), else it keeps one height
     sway : side-to-side shift of the hips over the stance foot (m); hip_yaw : the pelvis's turn
         with the stride (degrees); lean : forward pitch (degrees); arm_amp : the arms' forward
-        swing (degrees, drawn); upper : ranges of the upper body's other signals (degrees);
-        early : how early in its swing a foot comes up and forward (``_feet``)
+        swing (degrees, drawn); upper : ranges of the upper body's other signals (degrees)
     """
 
     step: tuple[float, float]
@@ -418,7 +414,6 @@ class _Gait:
     lean: float
     arm_amp: tuple[float, float]
     upper: dict
-    early: float = 1.0
 
 
 _WALK = _Gait(
@@ -484,7 +479,7 @@ def _plan_walk(
     offs = [np.tile([width, 0.0], (n[0] + 1, 1)), np.tile([-width, 0.0], (n[1] + 1, 1))]
     ankles, fpitch, fyaw = _feet(
         t, swings, offs, lifts, center, psi, body, gait.pitch_amp * _DEG, gait.toe_off * _DEG,
-        gait.plant_at, early=gait.early,
+        gait.plant_at,
     )  # fmt: skip
     # Stride phase w: the left foot swings for w in [0, duty pi] (mod 2 pi), the right one for
     # [pi, (1 + duty) pi]. The hips sway over the stance foot (left mid-stance at w = (1 + duty
