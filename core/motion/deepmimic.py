@@ -40,7 +40,7 @@ from core.errors import InputError
 from core.fileio import read_input_bytes
 from core.motion.gltf import sample_channel
 from core.motion.motion import Motion
-from core.skeleton import Skeleton
+from core.skeleton import Skeleton, rotation_about
 
 #: File names read as DeepMimic motion (their content must be its JSON).
 DEEPMIMIC_SUFFIXES: tuple[str, ...] = (".txt", ".json")
@@ -52,6 +52,7 @@ _DURATION_SPREAD = 0.01
 #: A rate within this fraction of a whole number of frames per second is that number (DeepMimic
 #: writes 1/30 s as 0.033332).
 _RATE_SNAP = 1e-4
+_Y, _Z = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
 
 #: (name, DeepMimic name, parent name, rest offset from the parent (m), end site (m) or None),
 #: parents first. From pybullet's ``humanoid/humanoid.urdf`` (its joint origins x 0.25; the
@@ -176,8 +177,7 @@ def read_deepmimic(path: str | os.PathLike, repeat: int = 1) -> Motion:
     for name, (col, hinge) in _COLUMNS.items():
         k = skeleton.index(name)
         if hinge:
-            about_z = np.outer(values[:, col], [0.0, 0.0, 1.0])
-            rotations[:, k] = Rotation.from_rotvec(about_z).as_matrix()
+            rotations[:, k] = rotation_about(_Z, values[:, col])
             continue
         xyzw = values[:, [col + 1, col + 2, col + 3, col]]
         rotations[:, k] = Rotation.from_quat(xyzw).as_matrix()
@@ -216,12 +216,6 @@ def _even(values: np.ndarray, fps: float) -> np.ndarray:
     return out
 
 
-def _yaw_matrix(angle: float) -> np.ndarray:
-    """Rotation by ``angle`` radians about +Y: (3, 3)."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
 def _play_loop(
     rotations: np.ndarray, root: np.ndarray, repeat: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +230,7 @@ def _play_loop(
     travel[:, 1] = 0.0
     rot, pos = [rotations], [root]
     for k in range(1, repeat):
-        h = _yaw_matrix(k * turn)
+        h = rotation_about(_Y, k * turn)
         start = pos[-1][-1]
         p = start + travel @ h.T
         p[:, 1] = root[:, 1]

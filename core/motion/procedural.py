@@ -392,9 +392,10 @@ class _Gait:
     lift : peak ankle lift in a swing (m); pitch_amp, toe_off : the swing's toe-down / toe-up
         and the heel rise at the end of a stance (degrees); plant_at : where in its stance the
         body passes over a foothold
-    sink : how far the root rides below its standing height (m); flights : the root bounces
-        twice a stride, highest mid-flight, planned to fall at g there (then trimmed where a leg
-        could not reach its foot, as every root height is), else it keeps one height
+    sink : how far the root rides below its standing height (m); with flights (duty over 1)
+        the root bounces twice a stride, highest mid-flight, planned to fall at g there (then
+        trimmed where a leg could not reach its foot, as every root height is), else it keeps
+        one height
     sway : side-to-side shift of the hips over the stance foot (m); hip_yaw : the pelvis's turn
         with the stride (degrees); lean : forward pitch (degrees); arm_amp : the arms' forward
         swing (degrees, drawn); upper : ranges of the upper body's other signals (degrees)
@@ -408,7 +409,6 @@ class _Gait:
     toe_off: float
     plant_at: float
     sink: float
-    flights: bool
     sway: float
     hip_yaw: float
     lean: float
@@ -418,7 +418,7 @@ class _Gait:
 
 _WALK = _Gait(
     step=(0.5, 0.62), period=(1.0, 1.2), duty=0.8, lift=(0.07, 0.11), pitch_amp=15.0,
-    toe_off=25.0, plant_at=0.42, sink=0.03, flights=False, sway=0.022, hip_yaw=5.0, lean=3.0,
+    toe_off=25.0, plant_at=0.42, sink=0.03, sway=0.022, hip_yaw=5.0, lean=3.0,
     arm_amp=(15, 30),
     upper={"l_clav": (-2, 4), "r_clav": (-2, 4), "l_abd": (-32, -20), "r_abd": (-32, -20),
            "l_twist": (-10, 10), "r_twist": (-10, 10), "l_elbow": (10, 30), "r_elbow": (10, 30),
@@ -428,7 +428,7 @@ _WALK = _Gait(
 #: a little ahead of the body, elbows bent and pumping, the body leaning into it.
 _RUN = _Gait(
     step=(0.9, 1.1), period=(0.64, 0.72), duty=1.3, lift=(0.22, 0.32), pitch_amp=25.0,
-    toe_off=30.0, plant_at=0.3, sink=0.05, flights=True, sway=0.012, hip_yaw=8.0, lean=9.0,
+    toe_off=30.0, plant_at=0.3, sink=0.05, sway=0.012, hip_yaw=8.0, lean=9.0,
     arm_amp=(30, 45),
     upper={"l_clav": (0, 6), "r_clav": (0, 6), "l_abd": (-25, -12), "r_abd": (-25, -12),
            "l_twist": (-10, 10), "r_twist": (-10, 10), "l_elbow": (70, 100),
@@ -499,7 +499,7 @@ def _plan_walk(
     zeros = np.zeros_like(t)
     spine = np.stack([s["bend"], zeros + 0.6 * lean, -6 * arm_swing], -1) * _DEG
     root_y = np.full_like(t, body.root_y - gait.sink * scale)
-    if gait.flights:  # two bounces a stride, highest mid-flight, falling at g there
+    if gait.duty > 1:  # flights: two bounces a stride, highest mid-flight, falling at g there
         omega = 2 * (2 * np.pi / period)
         root_y += GRAVITY / omega**2 * np.cos(2 * (w - 0.5 * (gait.duty - 1) * np.pi))
     return _Plan(
