@@ -306,7 +306,7 @@ LIBRARY_TRAIN: tuple[MotionSpec, ...] = (
 )
 
 
-#: Joint2Coarse's validation motions, what every choice is made on: 750 frames in seven clips.
+#: Joint2Coarse's validation motions, what every choice is made on: 990 frames in nine clips.
 #: (The spun dance turns each frame's step with the body since the spins above came in: its
 #: ground truth moved with it.)
 LIBRARY_VALIDATION: tuple[MotionSpec, ...] = (
@@ -334,6 +334,10 @@ LIBRARY_VALIDATION: tuple[MotionSpec, ...] = (
     # A run, since the library has runs (DeepMimic's captured run, a test motion, is faster than
     # anything the library held before: README, "Other real captures").
     MotionSpec("val-run", "run", 120, seed=44, speed=0.95, heading_deg=-30.0),
+    # A plain walk, since the runs' choice took a slow walk out of the library and the test
+    # motions (CMU 01_01 walks, as does DeepMimic's captured walk) then moved against it: README,
+    # "A plain walk in validation". Added before any choice was made with it.
+    MotionSpec("val-walk", "walk", 120, seed=45, speed=1.0, heading_deg=120.0),
 )
 
 
