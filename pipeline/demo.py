@@ -117,11 +117,14 @@ def stage_costs(config: PipelineConfig) -> list[float]:
         costs += [target * m.frames for m in [*checked, *tests]]
         train_samples = -(-config.train_motion.frames // config.frame_stride)
         costs += [c["gt_sample"] * pixels * train_samples * config.views_per_frame]
-    costs += [c["j2c_step"] * joint2coarse_config(config).total_steps]
-    if config.simulate_target:
+    j2c = c["j2c_step"] * joint2coarse_config(config).total_steps
+    if not config.simulate_target:
+        costs += [j2c]
+    else:  # Joint2Coarse beside the ground-truth sets, recorded when it ends (after them)
         evaluated = [*checked, *tests, config.train_motion]  # protocols V, U, then P
         test_samples = [-(-m.frames // config.test_stride) * config.test_views for m in evaluated]
         costs += [c["test_sample"] * pixels * n for n in test_samples]
+        costs += [j2c]
         render = c["render_step"] * pixels * renderer_config(config).steps
         costs += [render] * (1 + len(config.ablations))
         methods = 2 * (1 + len(config.baselines)) + len(config.ablations)
@@ -145,6 +148,7 @@ class _Progress:
         self.out, self.clock = (sys.stderr if out is None else out), clock
         self.start = self.eta.start
         self.stage_times: dict[str, float] = {}
+        self.beside: list[str] = []  # stages that ran in a second process beside others
 
     def log(self, message: str) -> None:
         print(message, file=self.out, flush=True)
@@ -251,6 +255,48 @@ def _simulate_all(
     return workers
 
 
+#: The stages :func:`_beside` may run in a second process: each needs only what is on disk.
+_BESIDE_STAGES: dict[str, Callable] = {"joint2coarse": stage_joint2coarse, "videos": stage_videos}
+
+
+def _stage_worker(stage: str, root: str, params: dict) -> tuple[float, list[str], object]:
+    """Child-process entry: one stage of :data:`_BESIDE_STAGES`; its seconds, log lines and
+    result."""
+    lines: list[str] = []
+    start = time.perf_counter()
+    result = _BESIDE_STAGES[stage](Project(root), PipelineConfig.from_params(params), lines.append)
+    return time.perf_counter() - start, lines, result
+
+
+def _beside(
+    project: Project, config: PipelineConfig, stage: str, name: str, progress: _Progress
+) -> Callable[[], object]:
+    """Start ``stage`` (:data:`_BESIDE_STAGES`) in a spawned process, to run beside the main
+    process's next stages, where there is a core for each (every stage runs ``torch_threads``
+    threads; the work and its results are the same wherever it runs); else run it now. Returns
+    a call that waits for it, logs its lines, records its seconds as the stage ``name`` and
+    returns its result."""
+    if (os.cpu_count() or 1) < 2 * config.torch_threads:
+        result = progress.stage(name, lambda: _BESIDE_STAGES[stage](project, config, progress.log))
+        return lambda: result
+    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    future = pool.submit(_stage_worker, stage, str(project.root), config.as_params())
+    progress.log(f"  {name}: in a second process, beside the stages that follow")
+    progress.beside.append(name)
+
+    def wait() -> object:
+        try:
+            seconds, lines, result = future.result()
+        finally:
+            pool.shutdown()
+        for line in lines:
+            progress.log(line)
+        progress.finished(name, seconds, seconds / 2)
+        return result
+
+    return wait
+
+
 def _baselines_worker(root: str, params: dict) -> dict:
     """Child-process entry: train the baselines of a project (one torch thread)."""
 
@@ -326,24 +372,30 @@ def run_demo(
         )
         for motion, which in sims
     }
-    if config.simulate_target:
-        progress.stage(
-            "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
-        )
-    j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
     renderer = baselines = evaluation = videos = None
-    if config.simulate_target:
-        for name in checked:
+    if not config.simulate_target:
+        j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
+    else:
+        # Joint2Coarse needs only the proxies' simulations; the ground-truth renders only the
+        # targets': on two cores they run side by side.
+        wait_for_joint2coarse = _beside(project, config, "joint2coarse", "joint2coarse", progress)
+        try:
             progress.stage(
-                f"validation set {name} (cameras of its own)",
-                lambda n=name: stage_testset(project, config, n, log, validation=True),
+                "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
             )
-        for name in [*tests, train]:
-            seen = " (the training motion)" if name == train else ""
-            progress.stage(
-                f"test set {name}{seen} (unseen cameras)",
-                lambda n=name: stage_testset(project, config, n, log),
-            )
+            for name in checked:
+                progress.stage(
+                    f"validation set {name} (cameras of its own)",
+                    lambda n=name: stage_testset(project, config, n, log, validation=True),
+                )
+            for name in [*tests, train]:
+                seen = " (the training motion)" if name == train else ""
+                progress.stage(
+                    f"test set {name}{seen} (unseen cameras)",
+                    lambda n=name: stage_testset(project, config, n, log),
+                )
+        finally:
+            j2c = wait_for_joint2coarse()
         wait_for_baselines = _start_baselines(project, config, log)
         try:
             renderer = progress.stage(
@@ -357,15 +409,19 @@ def run_demo(
             progress.stage(
                 f"ablation {name}", lambda n=name: stage_ablation(project, config, n, log)
             )
-        evaluation = progress.stage(
-            "evaluation (protocols V, U and P, unseen cameras)"
-            if checked
-            else "evaluation (protocols U and P, unseen cameras)",
-            lambda: stage_eval(project, config, log),
+        # The videos need only our renderer and Joint2Coarse: beside the evaluation.
+        wait_for_videos = _beside(
+            project, config, "videos", "videos (ground truth | neural render)", progress
         )
-        videos = progress.stage(
-            "videos (ground truth | neural render)", lambda: stage_videos(project, config, log)
-        )
+        try:
+            evaluation = progress.stage(
+                "evaluation (protocols V, U and P, unseen cameras)"
+                if checked
+                else "evaluation (protocols U and P, unseen cameras)",
+                lambda: stage_eval(project, config, log),
+            )
+        finally:
+            videos = wait_for_videos()
 
     report = {
         "preset": preset_name,
@@ -374,6 +430,7 @@ def run_demo(
         "config": config.as_params(),
         "stage_seconds": progress.stage_times,
         "simulation_processes": sim_processes,
+        "stages_beside": progress.beside,
         "proxy": proxy_report,
         "simulation": sim_reports,
         "joint2coarse": j2c,
@@ -677,6 +734,14 @@ def report_markdown(report: dict) -> str:
             "",
             f"The simulations ran {report['simulation_processes']} at a time, each in a process "
             "of its own: their seconds overlap (the total below is the run's own).",
+        ]
+    if report.get("stages_beside"):
+        named = " and ".join(f"`{n}`" for n in report["stages_beside"])
+        lines += [
+            "",
+            f"{named} ran in a second process beside the main one's stages (Joint2Coarse beside "
+            "the ground-truth renders, the videos beside the evaluation): their seconds overlap "
+            "those stages'.",
         ]
     p = report["proxy"]
     counts = p.get("proxy", {})

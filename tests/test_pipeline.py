@@ -115,6 +115,12 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert sims[0] == "simulate dance (proxy)" and sims[-1].endswith("(target)")
     if (os.cpu_count() or 1) >= 2:
         assert report["simulation_processes"] == 2 and "simulations ran 2 at a time" in md
+        # Joint2Coarse beside the ground-truth renders, the videos beside the evaluation, each
+        # in a second process; their stages keep their names and the stage table has them.
+        beside = ["joint2coarse", "videos (ground truth | neural render)"]
+        assert report["stages_beside"] == beside and "ran in a second process beside" in md
+        assert names.index("joint2coarse") > names.index("dataset (ground-truth renders)")
+        assert names.index(beside[1]) > names.index("joint2coarse")
 
 
 def test_time_left_follows_the_pace_of_the_stages_that_ran():
