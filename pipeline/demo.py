@@ -268,27 +268,43 @@ def _stage_worker(stage: str, root: str, params: dict) -> tuple[float, list[str]
     return time.perf_counter() - start, lines, result
 
 
+def _two_lanes(config: PipelineConfig) -> bool:
+    """Whether a second process can run beside the main one: a core for each, each running
+    ``torch_threads`` threads."""
+    return (os.cpu_count() or 1) >= 2 * config.torch_threads
+
+
+def _in_second_process(worker: Callable, *args) -> Callable[[], object]:
+    """Start ``worker(*args)`` in a spawned process; returns a call that waits for its result
+    (re-raising its error) and ends the process."""
+    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    future = pool.submit(worker, *args)
+
+    def wait() -> object:
+        try:
+            return future.result()
+        finally:
+            pool.shutdown()
+
+    return wait
+
+
 def _beside(
     project: Project, config: PipelineConfig, stage: str, name: str, progress: _Progress
 ) -> Callable[[], object]:
     """Start ``stage`` (:data:`_BESIDE_STAGES`) in a spawned process, to run beside the main
-    process's next stages, where there is a core for each (every stage runs ``torch_threads``
-    threads; the work and its results are the same wherever it runs); else run it now. Returns
-    a call that waits for it, logs its lines, records its seconds as the stage ``name`` and
-    returns its result."""
-    if (os.cpu_count() or 1) < 2 * config.torch_threads:
+    process's next stages, where there are two lanes (:func:`_two_lanes`; the work and its
+    results are the same wherever it runs); else run it now. Returns a call that waits for it,
+    logs its lines, records its seconds as the stage ``name`` and returns its result."""
+    if not _two_lanes(config):
         result = progress.stage(name, lambda: _BESIDE_STAGES[stage](project, config, progress.log))
         return lambda: result
-    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-    future = pool.submit(_stage_worker, stage, str(project.root), config.as_params())
+    child = _in_second_process(_stage_worker, stage, str(project.root), config.as_params())
     progress.log(f"  {name}: in a second process, beside the stages that follow")
     progress.beside.append(name)
 
     def wait() -> object:
-        try:
-            seconds, lines, result = future.result()
-        finally:
-            pool.shutdown()
+        seconds, lines, result = child()
         for line in lines:
             progress.log(line)
         progress.finished(name, seconds, seconds / 2)
@@ -307,22 +323,14 @@ def _baselines_worker(root: str, params: dict) -> dict:
 
 
 def _start_baselines(project: Project, config: PipelineConfig, log) -> Callable[[], dict]:
-    """Train the baselines beside our renderer when there is a core for each (each trains with
-    ``torch_threads`` threads), else one after the other. Returns a call that waits for them."""
+    """Train the baselines beside our renderer where there are two lanes (:func:`_two_lanes`),
+    else one after the other. Returns a call that waits for them."""
     if not config.baselines:
         return dict
-    if (os.cpu_count() or 1) >= 2 * config.torch_threads:
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        future = pool.submit(_baselines_worker, str(project.root), config.as_params())
+    if _two_lanes(config):
+        wait = _in_second_process(_baselines_worker, str(project.root), config.as_params())
         log(f"  training the baselines ({', '.join(config.baselines)}) in a second process")
-
-        def wait() -> dict:
-            try:
-                return future.result()
-            finally:
-                pool.shutdown()
-
-        return wait
+        return wait  # type: ignore[return-value]
     report = stage_baselines(project, config, log)
     return lambda: report
 
