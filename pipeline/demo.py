@@ -201,12 +201,25 @@ def _sim_bar(desc: str):
 SIM_PROCESSES = 2
 
 
-def _simulate_worker(root: str, params: dict, motion: str, which: str) -> tuple[float, list[str]]:
-    """Child-process entry: one simulation stage of a project; its seconds and its log lines."""
+#: The stages a spawned process may run (:func:`_stage_worker`): each needs only what is on disk.
+_CHILD_STAGES: dict[str, Callable] = {
+    "simulate": stage_simulate,
+    "joint2coarse": stage_joint2coarse,
+    "videos": stage_videos,
+}
+
+
+def _stage_worker(
+    stage: str, root: str, params: dict, *args: str
+) -> tuple[float, list[str], object]:
+    """Child-process entry: one stage of :data:`_CHILD_STAGES` of a project (``args``: the
+    stage's own, e.g. a simulation's motion and ``"proxy"`` | ``"target"``); its seconds, log
+    lines and result."""
     lines: list[str] = []
     start = time.perf_counter()
-    stage_simulate(Project(root), PipelineConfig.from_params(params), motion, which, lines.append)
-    return time.perf_counter() - start, lines
+    project, config = Project(root), PipelineConfig.from_params(params)
+    result = _CHILD_STAGES[stage](project, config, *args, log=lines.append)
+    return time.perf_counter() - start, lines, result
 
 
 def _simulate_all(
@@ -237,14 +250,14 @@ def _simulate_all(
     try:
         for phase in ("proxy", "target"):
             futures = {
-                pool.submit(_simulate_worker, str(project.root), params, motion, which): names[
-                    (motion, which)
-                ]
+                pool.submit(
+                    _stage_worker, "simulate", str(project.root), params, motion, which
+                ): names[(motion, which)]
                 for motion, which in sims
                 if which == phase
             }
             for future in as_completed(futures):
-                seconds, lines = future.result()
+                seconds, lines, _ = future.result()
                 for line in lines:
                     progress.log(line)
                 progress.finished(futures[future], seconds, seconds / workers)
@@ -253,19 +266,6 @@ def _simulate_all(
     for name in names.values():  # the table in the order of the stages, not of their ends
         progress.stage_times[name] = progress.stage_times.pop(name)
     return workers
-
-
-#: The stages :func:`_beside` may run in a second process: each needs only what is on disk.
-_BESIDE_STAGES: dict[str, Callable] = {"joint2coarse": stage_joint2coarse, "videos": stage_videos}
-
-
-def _stage_worker(stage: str, root: str, params: dict) -> tuple[float, list[str], object]:
-    """Child-process entry: one stage of :data:`_BESIDE_STAGES`; its seconds, log lines and
-    result."""
-    lines: list[str] = []
-    start = time.perf_counter()
-    result = _BESIDE_STAGES[stage](Project(root), PipelineConfig.from_params(params), lines.append)
-    return time.perf_counter() - start, lines, result
 
 
 def _two_lanes(config: PipelineConfig) -> bool:
@@ -292,12 +292,12 @@ def _in_second_process(worker: Callable, *args) -> Callable[[], object]:
 def _beside(
     project: Project, config: PipelineConfig, stage: str, name: str, progress: _Progress
 ) -> Callable[[], object]:
-    """Start ``stage`` (:data:`_BESIDE_STAGES`) in a spawned process, to run beside the main
+    """Start ``stage`` (:data:`_CHILD_STAGES`) in a spawned process, to run beside the main
     process's next stages, where there are two lanes (:func:`_two_lanes`; the work and its
     results are the same wherever it runs); else run it now. Returns a call that waits for it,
     logs its lines, records its seconds as the stage ``name`` and returns its result."""
     if not _two_lanes(config):
-        result = progress.stage(name, lambda: _BESIDE_STAGES[stage](project, config, progress.log))
+        result = progress.stage(name, lambda: _CHILD_STAGES[stage](project, config, progress.log))
         return lambda: result
     child = _in_second_process(_stage_worker, stage, str(project.root), config.as_params())
     progress.log(f"  {name}: in a second process, beside the stages that follow")
