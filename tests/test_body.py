@@ -10,6 +10,7 @@ import pytest
 from core.body.colliders import (
     body_capsules,
     capsule_distance,
+    closest_on_segments,
     pose_capsules,
     posed_capsules_for,
 )
@@ -406,6 +407,26 @@ def test_body_carries_the_simulation_collider_with_its_axes_inside_the_skin(shap
     d = capsule_distance(v[region], c.endpoints, c.radii)
     assert region.sum() > 1000
     assert np.abs(np.median(d)) < 0.02 and np.percentile(d, 95) < 0.01
+
+
+def test_capsule_distance_is_the_minimum_over_every_capsule_to_the_bit(body, rng):
+    """The pruned search (a bound from each segment's middle) gives exactly the brute-force
+    minimum over every point and capsule, near the body, inside it and far from it."""
+    c = body.capsules
+    pts = np.concatenate(
+        [
+            body.vertices + 0.02 * rng.standard_normal(body.vertices.shape),
+            rng.uniform(-1.5, 2.5, (500, 3)),
+            c.endpoints.mean(1),  # on the axes: deep inside
+        ]
+    )
+    e = c.endpoints.astype(np.float64)
+    d = closest_on_segments(pts[:, None], e[None, :, 0], e[None, :, 1])[0] - c.radii[None]
+    want = d.min(1).astype(np.float32)
+    got = capsule_distance(pts, c.endpoints, c.radii)
+    assert np.array_equal(got, want)
+    assert (got < 0).any() and (got > 0.5).any()
+    assert capsule_distance(np.zeros((0, 3)), c.endpoints, c.radii).shape == (0,)
 
 
 def test_capsules_follow_the_skeleton(body):

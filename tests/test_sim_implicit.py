@@ -12,7 +12,7 @@ from core.body.shape import BodyShape
 from core.errors import InputError
 from core.mesh import unique_edges
 from core.sim.config import SimConfig
-from core.sim.implicit import ImplicitCloth, bending_matrix, cloth_rest, segment_contacts
+from core.sim.implicit import ImplicitCloth, bending_matrix, cloth_rest, segment_gaps
 from core.sim.simulate import edge_strain, simulate
 from tests.sim_helpers import frustum_skirt, spin_motion, two_layer_skirt
 
@@ -56,7 +56,7 @@ def test_gradient_and_hessian_match_finite_differences():
     e, g, _ = cloth._objective(y, target, 100.0, ends, near, None, True)
     upper = cloth._objective(y, target, 100.0, far, apart, None, True)[2]  # its upper triangle
     h = upper + sp.triu(upper, 1).T
-    assert (segment_contacts(y, ends)[0] < 0.154).any()
+    assert (segment_gaps(y, ends) < 0.154).any()
     step = 1e-6
     num_g = np.zeros_like(y)
     num_h = np.zeros((h.shape[0], h.shape[0]))
@@ -79,6 +79,31 @@ def test_gradient_and_hessian_match_finite_differences():
     assert np.abs(num_h - h.toarray()).max() < 1e-4 * np.abs(num_h).max()
 
 
+def test_contact_pairs_pruned_by_the_step_start_are_the_pairs_of_every_gap():
+    """The contact candidates measured only where the step start's gaps cannot rule them
+    out are the same pairs, in the same order, as measuring every vertex against every
+    capsule at the step's start and end positions and segments."""
+    v, f, i = _sheet(8)
+    rng = np.random.default_rng(3)
+    cloth = ImplicitCloth(cloth_rest(v, f, 0.15, 0.0), 5e3, 1e4, np.full(len(v), 0.004),
+                          np.zeros(3), np.array([0.05, 0.08, 0.03]), i[0], 1e-5, 8)  # fmt: skip
+    ends0 = np.array(
+        [[[0.0, 1.05, 0.1], [0.5, 1.05, 0.1]], [[0.2, 0.9, 0.0], [0.2, 0.9, 0.5]],
+         [[3.0, 3.0, 3.0], [3.1, 3.0, 3.0]]]
+    )  # fmt: skip
+    for _ in range(5):
+        x = v + 0.02 * rng.standard_normal(v.shape)
+        y = x + 0.01 * rng.standard_normal(v.shape)
+        ends1 = ends0 + 0.02 * rng.standard_normal(ends0.shape)
+        known = (x, ends0, segment_gaps(x, ends0))
+        for points, ends, pad in (([x, y], [ends0, ends1], 0.03), ([y], [ends1], 0.0)):
+            every = cloth._pairs(points, ends, pad)
+            pruned = cloth._pairs(points, ends, pad, known)
+            assert len(every[0]) > 0
+            for a, b in zip(every, pruned):
+                assert np.array_equal(a, b)
+
+
 def test_a_pinned_sheet_hangs_on_a_capsule_without_stretching_or_passing_through():
     v, f, i = _sheet(10, 0.6)
     rest = cloth_rest(v, f, 0.15, 2e-5)
@@ -93,7 +118,7 @@ def test_a_pinned_sheet_hangs_on_a_capsule_without_stretching_or_passing_through
     strain = edge_strain(x[None], e, np.linalg.norm(v[e[:, 1]] - v[e[:, 0]], axis=1))
     assert strain.max() < 0.05
     assert x[:, 1].min() < 0.7  # draped down past the bar
-    assert segment_contacts(x, ends)[0].min() > 0.05 + 0.004 - 0.001  # not through it
+    assert segment_gaps(x, ends).min() > 0.05 + 0.004 - 0.001  # not through it
     assert np.mean(cloth.newton_iterations) < 8  # most steps converge well before the cap
 
 

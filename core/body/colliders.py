@@ -243,6 +243,20 @@ def simulation_colliders(
     return posed_garment_capsules(shape, rotations, roots, garment_top, arm_colliders)
 
 
+def _to_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """(r, s): the offsets (..., 3) from the segments' closest points to ``p``, and those
+    points' positions along the segments (...) in [0, 1]."""
+    ab = b - a
+    s = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-20), 0.0, 1.0)
+    return p - (a + s[..., None] * ab), s
+
+
+def segment_distances(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The distances (...) of :func:`closest_on_segments` alone, the same numbers to the bit."""
+    r = _to_segments(p, a, b)[0]
+    return np.sqrt((r * r).sum(-1))
+
+
 def closest_on_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray):
     """Points ``p`` against segments ``a -> b`` (all (..., 3), broadcast together).
 
@@ -252,9 +266,7 @@ def closest_on_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray):
     n : (..., 3) unit directions from the closest points to ``p``
     s : (...) the closest points' positions along the segments, in [0, 1]
     """
-    ab = b - a
-    s = np.clip(((p - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-20), 0.0, 1.0)
-    r = p - (a + s[..., None] * ab)
+    r, s = _to_segments(p, a, b)
     d = np.sqrt((r * r).sum(-1))
     return d, r / np.maximum(d, 1e-12)[..., None], s
 
@@ -276,8 +288,19 @@ def capsule_distance(points: np.ndarray, endpoints: np.ndarray, radii: np.ndarra
     e = np.asarray(endpoints, np.float64)
     r = np.asarray(radii, np.float64)
     out = np.full(len(p), np.inf)
-    for k in range(len(e)):  # one capsule at a time: (N, 3) arrays, no (N, K, 3) temporaries
-        np.minimum(out, closest_on_segments(p, e[k, 0], e[k, 1])[0] - r[k], out=out)
+    if not len(p):
+        return out.astype(np.float32)
+    # A point is no nearer a segment than its distance to the segment's middle less half its
+    # length: each capsule measures only the points that bound lets it be nearer than the
+    # nearest so far (1 nm of slack for rounding), the nearest capsules first. The minimum is
+    # the same, to the bit, as measuring every point against every capsule.
+    mid = 0.5 * (e[:, 0] + e[:, 1])
+    half = 0.5 * np.linalg.norm(e[:, 1] - e[:, 0], axis=1)
+    order = np.argsort(np.linalg.norm(mid - p.mean(0), axis=1) - half - r)
+    for k in order:  # one capsule at a time: (N, 3) arrays, no (N, K, 3) temporaries
+        lower = np.sqrt(((p - mid[k]) ** 2).sum(1)) - half[k] - r[k]
+        i = np.flatnonzero(lower - 1e-9 < out)
+        out[i] = np.minimum(out[i], segment_distances(p[i], e[k, 0], e[k, 1]) - r[k])
     return out.astype(np.float32)
 
 

@@ -902,9 +902,14 @@ def simulate(
 
 
 def _newton_version() -> str:
-    import newton
+    """newton's installed version, read from its metadata: importing newton (5 s) only to
+    name it would cost the implicit solver, which does not use it, that much per process."""
+    from importlib.metadata import PackageNotFoundError, version
 
-    return str(getattr(newton, "__version__", "unknown"))
+    try:
+        return version("newton")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _report(
