@@ -8,13 +8,14 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from core.fileio import atomic_open, write_json
 from core.progress import StageEta
 from core.project import RECORD_NAME, Project
 from pipeline.config import (
+    Log,
     PipelineConfig,
     available_extra_motions,
     available_test_motions,
@@ -120,13 +121,18 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     j2c = c["j2c_step"] * joint2coarse_config(config).total_steps
     if not config.simulate_target:
         costs += [j2c]
-    else:  # Joint2Coarse beside the ground-truth sets, recorded when it ends (after them)
+    else:  # Joint2Coarse beside the ground-truth sets (recorded in the order they end, which
+        # these costs follow where Joint2Coarse ends after them; only the sum matters at the end)
         evaluated = [*checked, *tests, config.train_motion]  # protocols V, U, then P
         test_samples = [-(-m.frames // config.test_stride) * config.test_views for m in evaluated]
         costs += [c["test_sample"] * pixels * n for n in test_samples]
         costs += [j2c]
         render = c["render_step"] * pixels * renderer_config(config).steps
-        costs += [render] * (1 + len(config.ablations))
+        costs += [render]
+        # the baselines in the second lane, their share of the wall time: three quarters of our
+        # renderer's seconds (328 s beside its 443 in /tmp/q60), over two lanes
+        costs += [0.375 * render] if config.baselines else []
+        costs += [render] * len(config.ablations)
         methods = 2 * (1 + len(config.baselines)) + len(config.ablations)
         costs += [c["eval_sample"] * pixels * methods * sum(test_samples)]
         costs += [c["video_frame"] * pixels * sum(m.frames for m in tests)]
@@ -201,10 +207,22 @@ def _sim_bar(desc: str):
 SIM_PROCESSES = 2
 
 
+def _baselines(project: Project, config: PipelineConfig, log: Log) -> dict:
+    return stage_baselines(project, config, log, progress=False)
+
+
+def _testset(project: Project, config: PipelineConfig, motion: str, check: str, log: Log) -> Path:
+    """A ground-truth set: the renderers' validation motion's (``check == "validation"``,
+    cameras of its own) or a test motion's."""
+    return stage_testset(project, config, motion, log, validation=check == "validation")
+
+
 #: The stages a spawned process may run (:func:`_stage_worker`): each needs only what is on disk.
 _CHILD_STAGES: dict[str, Callable] = {
     "simulate": stage_simulate,
     "joint2coarse": stage_joint2coarse,
+    "baselines": _baselines,
+    "testset": _testset,
     "videos": stage_videos,
 }
 
@@ -228,7 +246,7 @@ def _simulate_all(
     """Run the simulation stages ``sims`` ((motion, ``"proxy"`` | ``"target"``), in order).
 
     Where there is a core for each, :data:`SIM_PROCESSES` at a time, each in a spawned process:
-    every proxy first, then the targets (each is embedded in, or follows, its motion's proxy);
+    each target once its motion's proxy has ended (it is embedded in, or follows, the proxy);
     the stage table keeps the order of ``sims``. Otherwise one after the other, with a progress
     bar each. Returns how many ran at once.
     """
@@ -246,21 +264,39 @@ def _simulate_all(
         return 1
     progress.log(f"  simulating {workers} clips at a time, each in a process of its own")
     params = config.as_params()
+    # Each target as soon as its proxy has ended, the proxies that have one first, then the
+    # longest: the clips still running at the end are short, so the other process is not
+    # left waiting for long.
+    motions = [config.train_motion, *available_extra_motions(config)]
+    motions += [*available_validation_motions(config), *available_test_motions(config)]
+    frames = {m.name: m.frames for m in motions}
+    embedded = {motion for motion, which in sims if which == "target"}
+    queue = sorted(
+        (sim for sim in sims if sim[1] == "proxy"),
+        key=lambda sim: (sim[0] not in embedded, -frames.get(sim[0], 0)),
+    )
+    targets = [sim for sim in sims if sim[1] == "target"]
+    ended: set[str] = set()
+    running: dict = {}
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
     try:
-        for phase in ("proxy", "target"):
-            futures = {
-                pool.submit(
-                    _stage_worker, "simulate", str(project.root), params, motion, which
-                ): names[(motion, which)]
-                for motion, which in sims
-                if which == phase
-            }
-            for future in as_completed(futures):
+        while queue or targets or running:
+            while len(running) < workers:
+                ready = [t for t in targets if t[0] in ended or (t[0], "proxy") not in names]
+                if not ready and not queue:
+                    break
+                job = ready[0] if ready else queue.pop(0)
+                if ready:
+                    targets.remove(job)
+                future = pool.submit(_stage_worker, "simulate", str(project.root), params, *job)
+                running[future] = job
+            for future in wait(running, return_when=FIRST_COMPLETED).done:
+                motion, which = running.pop(future)
                 seconds, lines, _ = future.result()
                 for line in lines:
                     progress.log(line)
-                progress.finished(futures[future], seconds, seconds / workers)
+                progress.finished(names[(motion, which)], seconds, seconds / workers)
+                ended |= {motion} if which == "proxy" else set()
     finally:  # a failed simulation stops the run: the queued ones are dropped
         pool.shutdown(wait=True, cancel_futures=True)
     for name in names.values():  # the table in the order of the stages, not of their ends
@@ -274,65 +310,65 @@ def _two_lanes(config: PipelineConfig) -> bool:
     return (os.cpu_count() or 1) >= 2 * config.torch_threads
 
 
-def _in_second_process(worker: Callable, *args) -> Callable[[], object]:
-    """Start ``worker(*args)`` in a spawned process; returns a call that waits for its result
-    (re-raising its error) and ends the process."""
-    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-    future = pool.submit(worker, *args)
+#: A stage for a second lane: (its key in :data:`_CHILD_STAGES`, its name in the stage table,
+#: its own arguments after the project and the config).
+Job = tuple[str, str, tuple[str, ...]]
 
-    def wait() -> object:
+
+def _lane_worker(root: str, params: dict, jobs: list[Job]) -> list[tuple[float, list[str], object]]:
+    """Child-process entry: the ``jobs`` one after the other; each one's seconds, log lines and
+    result."""
+    return [_stage_worker(stage, root, params, *args) for stage, _, args in jobs]
+
+
+class _Lane:
+    """Stages that run one after the other beside the main process's (:func:`_beside`)."""
+
+    def __init__(self, jobs: list[Job], progress: _Progress, future=None, pool=None, done=None):
+        self.jobs, self.progress = jobs, progress
+        self._future, self._pool, self._results = future, pool, done
+
+    def done(self) -> bool:
+        """Whether every stage of the lane has ended (without waiting)."""
+        return self._future is None or self._future.done()
+
+    def wait(self) -> list[object]:
+        """Wait for the lane (re-raising a stage's error), log its stages' lines, record their
+        seconds under their names in the stage table; their results, in order."""
+        if self._future is None:
+            return self._results
         try:
-            return future.result()
+            runs = self._future.result()
         finally:
-            pool.shutdown()
-
-    return wait
+            self._pool.shutdown()
+        for (_, name, _), (seconds, lines, _) in zip(self.jobs, runs):
+            for line in lines:
+                self.progress.log(line)
+            self.progress.finished(name, seconds, seconds / 2)
+        return [result for _, _, result in runs]
 
 
 def _beside(
-    project: Project, config: PipelineConfig, stage: str, name: str, progress: _Progress
-) -> Callable[[], object]:
-    """Start ``stage`` (:data:`_CHILD_STAGES`) in a spawned process, to run beside the main
-    process's next stages, where there are two lanes (:func:`_two_lanes`; the work and its
-    results are the same wherever it runs); else run it now. Returns a call that waits for it,
-    logs its lines, records its seconds as the stage ``name`` and returns its result."""
+    project: Project, config: PipelineConfig, jobs: list[Job], progress: _Progress
+) -> _Lane:
+    """Start ``jobs`` (stages of :data:`_CHILD_STAGES`, in order) in a spawned process, to run
+    beside the main process's next stages, where there are two lanes (:func:`_two_lanes`; the
+    work and its results are the same wherever it runs); else run them now, one after the
+    other. The lane's :meth:`_Lane.wait` logs them and records their seconds."""
     if not _two_lanes(config):
-        result = progress.stage(name, lambda: _CHILD_STAGES[stage](project, config, progress.log))
-        return lambda: result
-    child = _in_second_process(_stage_worker, stage, str(project.root), config.as_params())
-    progress.log(f"  {name}: in a second process, beside the stages that follow")
-    progress.beside.append(name)
-
-    def wait() -> object:
-        seconds, lines, result = child()
-        for line in lines:
-            progress.log(line)
-        progress.finished(name, seconds, seconds / 2)
-        return result
-
-    return wait
-
-
-def _baselines_worker(root: str, params: dict) -> dict:
-    """Child-process entry: train the baselines of a project (one torch thread)."""
-
-    def log(message: str) -> None:
-        print(f"[baselines]{message}", file=sys.stderr, flush=True)
-
-    return stage_baselines(Project(root), PipelineConfig.from_params(params), log, progress=False)
-
-
-def _start_baselines(project: Project, config: PipelineConfig, log) -> Callable[[], dict]:
-    """Train the baselines beside our renderer where there are two lanes (:func:`_two_lanes`),
-    else one after the other. Returns a call that waits for them."""
-    if not config.baselines:
-        return dict
-    if _two_lanes(config):
-        wait = _in_second_process(_baselines_worker, str(project.root), config.as_params())
-        log(f"  training the baselines ({', '.join(config.baselines)}) in a second process")
-        return wait  # type: ignore[return-value]
-    report = stage_baselines(project, config, log)
-    return lambda: report
+        results = [
+            progress.stage(
+                name, lambda k=key, a=args: _CHILD_STAGES[k](project, config, *a, log=progress.log)
+            )
+            for key, name, args in jobs
+        ]
+        return _Lane(jobs, progress, done=results)
+    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    future = pool.submit(_lane_worker, str(project.root), config.as_params(), jobs)
+    for _, name, _ in jobs:
+        progress.log(f"  {name}: in a second process, beside the stages that follow")
+        progress.beside.append(name)
+    return _Lane(jobs, progress, future, pool)
 
 
 def run_demo(
@@ -384,42 +420,48 @@ def run_demo(
     if not config.simulate_target:
         j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
     else:
-        # Joint2Coarse needs only the proxies' simulations; the ground-truth renders only the
-        # targets': on two cores they run side by side.
-        wait_for_joint2coarse = _beside(project, config, "joint2coarse", "joint2coarse", progress)
+        # Two lanes where there are two cores. Joint2Coarse needs only the proxies'
+        # simulations, the ground-truth renders only the targets': side by side. The
+        # evaluation's ground-truth sets are needed by it alone: they fill the main lane's
+        # wait for Joint2Coarse, and the rest follow the baselines in the second lane, beside
+        # our renderer (both need Joint2Coarse's proxy and the training renders).
+        sets: list[Job] = [
+            ("testset", f"validation set {name} (cameras of its own)", (name, "validation"))
+            for name in checked
+        ]
+        sets += [
+            ("testset", f"test set {name}{' (the training motion)' if name == train else ''} "
+             "(unseen cameras)", (name, "test"))
+            for name in [*tests, train]
+        ]  # fmt: skip
+        lane = _beside(project, config, [("joint2coarse", "joint2coarse", ())], progress)
         try:
             progress.stage(
                 "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
             )
-            for name in checked:
-                progress.stage(
-                    f"validation set {name} (cameras of its own)",
-                    lambda n=name: stage_testset(project, config, n, log, validation=True),
-                )
-            for name in [*tests, train]:
-                seen = " (the training motion)" if name == train else ""
-                progress.stage(
-                    f"test set {name}{seen} (unseen cameras)",
-                    lambda n=name: stage_testset(project, config, n, log),
-                )
+            while sets and not lane.done():
+                key, name, args = sets.pop(0)
+                progress.stage(name, lambda k=key, a=args: _CHILD_STAGES[k](project, config, *a,
+                                                                            log=log))  # fmt: skip
         finally:
-            j2c = wait_for_joint2coarse()
-        wait_for_baselines = _start_baselines(project, config, log)
+            (j2c,) = lane.wait()
+        named = ", ".join(config.baselines)
+        first = [("baselines", f"baselines ({named})", ())] if config.baselines else []
+        lane = _beside(project, config, first + sets, progress)
         try:
             renderer = progress.stage(
-                "neural renderer" + (f" (baselines {', '.join(config.baselines)} beside it)"
-                                     if config.baselines else ""),
-                lambda: stage_renderer(project, config, log),
-            )  # fmt: skip
+                "neural renderer", lambda: stage_renderer(project, config, log)
+            )
         finally:
-            baselines = wait_for_baselines()
+            results = lane.wait()
+        baselines = results[0] if config.baselines else {}
         for name in config.ablations:
             progress.stage(
                 f"ablation {name}", lambda n=name: stage_ablation(project, config, n, log)
             )
         # The videos need only our renderer and Joint2Coarse: beside the evaluation.
-        wait_for_videos = _beside(
-            project, config, "videos", "videos (ground truth | neural render)", progress
+        lane = _beside(
+            project, config, [("videos", "videos (ground truth | neural render)", ())], progress
         )
         try:
             evaluation = progress.stage(
@@ -429,7 +471,7 @@ def run_demo(
                 lambda: stage_eval(project, config, log),
             )
         finally:
-            videos = wait_for_videos()
+            (videos,) = lane.wait()
 
     report = {
         "preset": preset_name,
@@ -747,9 +789,8 @@ def report_markdown(report: dict) -> str:
         named = " and ".join(f"`{n}`" for n in report["stages_beside"])
         lines += [
             "",
-            f"{named} ran in a second process beside the main one's stages (Joint2Coarse beside "
-            "the ground-truth renders, the videos beside the evaluation): their seconds overlap "
-            "those stages'.",
+            f"{named} ran in a second process beside the main one's stages: their seconds "
+            "overlap those stages'.",
         ]
     p = report["proxy"]
     counts = p.get("proxy", {})

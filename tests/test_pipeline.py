@@ -115,12 +115,20 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     assert sims[0] == "simulate dance (proxy)" and sims[-1].endswith("(target)")
     if (os.cpu_count() or 1) >= 2:
         assert report["simulation_processes"] == 2 and "simulations ran 2 at a time" in md
-        # Joint2Coarse beside the ground-truth renders, the videos beside the evaluation, each
-        # in a second process; their stages keep their names and the stage table has them.
-        beside = ["joint2coarse", "videos (ground truth | neural render)"]
-        assert report["stages_beside"] == beside and "ran in a second process beside" in md
+        # Joint2Coarse beside the ground-truth renders, the baselines (then the ground-truth
+        # sets left) beside our renderer, the videos beside the evaluation, in a second
+        # process; their stages keep their names and the stage table has them.
+        beside = report["stages_beside"]
+        assert beside[0] == "joint2coarse" and beside[1] == "baselines (pix2pix, dnr, dnr-gan)"
+        assert beside[-1] == "videos (ground truth | neural render)"
+        assert "ran in a second process beside" in md
         assert names.index("joint2coarse") > names.index("dataset (ground-truth renders)")
         assert names.index(beside[1]) > names.index("joint2coarse")
+        assert names.index(beside[-1]) > names.index(beside[1])
+    # Every ground-truth set ran once, in one lane or the other, before the evaluation.
+    sets = [n for n in names if n.startswith(("validation set ", "test set "))]
+    assert len(sets) == 4 and sets[0].startswith("validation set val-walk")
+    assert max(map(names.index, sets)) < names.index(next(n for n in names if "evaluation" in n))
 
 
 def test_time_left_follows_the_pace_of_the_stages_that_ran():
