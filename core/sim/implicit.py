@@ -335,22 +335,22 @@ class ImplicitCloth:
             np.add.at(h, vi[touch], self.contact_ke * n[touch, :, None] * n[touch, None, :])
         return energy, grad, h
 
-    def _pairs(self, points: list[np.ndarray], ends: list[np.ndarray], pad: float, known=None):
+    def _pairs(self, points: list[np.ndarray], ends: list[np.ndarray], pad: float, start=None):
         """(vertex, capsule, reach) of every pair within ``pad`` of touching at any of the
         given positions (V, 3) against any of the given segments (K, 2, 3), in (vertex,
         capsule) order.
 
-        ``known``: (x (V, 3), ends0 (K, 2, 3), their gaps (V, K) from :func:`segment_gaps`), or
+        ``start``: (x (V, 3), ends0 (K, 2, 3), their gaps (V, K) from :func:`segment_gaps`), or
         None. A pair's gap moves by at most its vertex's move from ``x`` plus the largest move
         of its capsule's ends from ``ends0`` (every point of a segment moves by at most that),
         so only the pairs that this bound cannot rule out are measured: the same pairs, to
         the bit, as measuring them all, for a fraction of the cost (most of the body is far
         from most of the garment)."""
         limit = self.reach + pad
-        if known is None:
+        if start is None:
             vi, ki = np.nonzero(np.ones(limit.shape, bool))
         else:
-            x0, e0, gap0 = known
+            x0, e0, gap0 = start
             move = np.max([np.linalg.norm(p - x0, axis=1) for p in points], 0)  # (V,)
             shift = np.max([np.linalg.norm(e - e0, axis=2).max(1) for e in ends], 0)  # (K,)
             vi, ki = np.nonzero(gap0 < limit + move[:, None] + shift[None] + 1e-9)
@@ -476,9 +476,9 @@ class ImplicitCloth:
         y[~self.free] = pinned_to
         inv_dt2 = 1.0 / (h * h)
         gap0 = segment_gaps(x, ends0)
-        known = (x, ends0, gap0)
+        start = (x, ends0, gap0)  # the step's start: every gap the contact pairs need bounds
         lag = self._friction_lag(x, ends0, ends1, gap0, dt)
-        pairs = self._pairs([x, y], [ends0, ends1], CONTACT_PAD, known)
+        pairs = self._pairs([x, y], [ends0, ends1], CONTACT_PAD, start)
         free = self.free
         used, k = self.iterations, 0
         while k < self.iterations:
@@ -504,7 +504,7 @@ class ImplicitCloth:
             y = y + alpha * p
             size = np.abs(p).max() if self.norm == "max" else np.sqrt((p * p).sum(1).mean())
             if alpha * size < self.tol:
-                missed = self._pairs([y], [ends1], 0.0, known)
+                missed = self._pairs([y], [ends1], 0.0, start)
                 known = set(zip(pairs[0].tolist(), pairs[1].tolist()))
                 new = [i for i, vk in enumerate(zip(*missed[:2])) if vk not in known]
                 if not new:  # no contact left out: converged
