@@ -118,20 +118,18 @@ def stage_costs(config: PipelineConfig) -> list[float]:
         costs += [target * m.frames for m in [*checked, *tests]]
         train_samples = -(-config.train_motion.frames // config.frame_stride)
         costs += [c["gt_sample"] * pixels * train_samples * config.views_per_frame]
-    j2c = c["j2c_step"] * joint2coarse_config(config).total_steps
-    if not config.simulate_target:
-        costs += [j2c]
-    else:  # Joint2Coarse beside the ground-truth sets (recorded in the order they end, which
-        # these costs follow where Joint2Coarse ends after them; only the sum matters at the end)
-        evaluated = [*checked, *tests, config.train_motion]  # protocols V, U, then P
-        test_samples = [-(-m.frames // config.test_stride) * config.test_views for m in evaluated]
-        costs += [c["test_sample"] * pixels * n for n in test_samples]
-        costs += [j2c]
+    costs += [c["j2c_step"] * joint2coarse_config(config).total_steps]
+    if config.simulate_target:  # in the order of the stage table: Joint2Coarse (beside the
+        # training renders), our renderer, then the second lane's baselines and ground-truth
+        # sets, which count their share of the wall time (with two lanes, half their seconds)
         render = c["render_step"] * pixels * renderer_config(config).steps
         costs += [render]
-        # the baselines in the second lane, their share of the wall time: three quarters of our
-        # renderer's seconds (328 s beside its 443 in /tmp/q60), over two lanes
+        # the baselines: three quarters of our renderer's seconds (291 s beside its 395 in
+        # /tmp/q61)
         costs += [0.375 * render] if config.baselines else []
+        evaluated = [*checked, *tests, config.train_motion]  # protocols V, U, then P
+        test_samples = [-(-m.frames // config.test_stride) * config.test_views for m in evaluated]
+        costs += [0.5 * c["test_sample"] * pixels * n for n in test_samples]
         costs += [render] * len(config.ablations)
         methods = 2 * (1 + len(config.baselines)) + len(config.ablations)
         costs += [c["eval_sample"] * pixels * methods * sum(test_samples)]
@@ -328,10 +326,6 @@ class _Lane:
         self.jobs, self.progress = jobs, progress
         self._future, self._pool, self._results = future, pool, done
 
-    def done(self) -> bool:
-        """Whether every stage of the lane has ended (without waiting)."""
-        return self._future is None or self._future.done()
-
     def wait(self) -> list[object]:
         """Wait for the lane (re-raising a stage's error), log its stages' lines, record their
         seconds under their names in the stage table; their results, in order."""
@@ -421,10 +415,11 @@ def run_demo(
         j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
     else:
         # Two lanes where there are two cores. Joint2Coarse needs only the proxies'
-        # simulations, the ground-truth renders only the targets': side by side. The
-        # evaluation's ground-truth sets are needed by it alone: they fill the main lane's
-        # wait for Joint2Coarse, and the rest follow the baselines in the second lane, beside
-        # our renderer (both need Joint2Coarse's proxy and the training renders).
+        # simulations, the training renders only the targets': side by side. The
+        # evaluation's ground-truth sets are needed by it alone: they follow the baselines in
+        # the second lane, beside our renderer (both need Joint2Coarse's proxy and the
+        # training renders). Not in the main lane while Joint2Coarse trains: a process beside
+        # it slows it by half (355 s against 247 alone in /tmp/q61), and it is the longer.
         sets: list[Job] = [
             ("testset", f"validation set {name} (cameras of its own)", (name, "validation"))
             for name in checked
@@ -439,10 +434,6 @@ def run_demo(
             progress.stage(
                 "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
             )
-            while sets and not lane.done():
-                key, name, args = sets.pop(0)
-                progress.stage(name, lambda k=key, a=args: _CHILD_STAGES[k](project, config, *a,
-                                                                            log=log))  # fmt: skip
         finally:
             (j2c,) = lane.wait()
         named = ", ".join(config.baselines)
