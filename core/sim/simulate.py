@@ -28,6 +28,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
+from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -904,8 +905,6 @@ def simulate(
 def _newton_version() -> str:
     """newton's installed version, read from its metadata: importing newton (5 s) only to
     name it would cost the implicit solver, which does not use it, that much per process."""
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version("newton")
     except PackageNotFoundError:
