@@ -32,8 +32,8 @@ Everything is numpy float64 on the CPU; a step's cost is a few sparse factorisat
 quick project's 989-vertex proxy, at 8 steps a frame to 0.1 mm at every vertex, that is 480 to
 875 ms a frame; at 2 steps to 0.3 mm root mean square (the quick preset's ground truth) 96 to
 147 ms (about a quarter less since the contact candidates are pruned by the step start's
-gaps, the same steps to the bit), and its runs are as far from runs twice as fine as from themselves on a 10 um nudge:
-the converged cloth's folds go one way or another (README "Simulation quality", ``dng bench
+gaps, the same steps to the bit), and its runs are as far from runs twice as fine as from
+themselves on a 10 um nudge: the converged cloth's folds go one way or another (README "Simulation quality", ``dng bench
 sim --set solver=implicit --floor``).
 """
 
