@@ -96,6 +96,9 @@ class ShadingConfig:
     """Directional lights fixed to the camera."""
     wrap: float = 0.35
     """Diffuse wrap (0 = Lambert): softens the terminator like cloth's subsurface scattering."""
+    threads: int = 0
+    """Ray-casting threads (:attr:`core.raster.RasterConfig.threads`; 0: every core). The images
+    are the same whatever the number: each ray is cast alone."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.supersample, int) and 1 <= self.supersample <= 8):
@@ -105,6 +108,8 @@ class ShadingConfig:
             raise InputError(f"background must be 3 numbers in [0, 1], got {self.background}")
         if not 0.0 <= self.wrap <= 1.0:
             raise InputError(f"wrap must be in [0, 1], got {self.wrap}")
+        if not (isinstance(self.threads, int) and self.threads >= 0):
+            raise InputError(f"threads must be an integer >= 0, got {self.threads!r}")
 
 
 @dataclass(frozen=True)
@@ -332,7 +337,8 @@ def _render(
     """
     k = config.supersample
     cam = resize_camera(camera, k * camera.width, k * camera.height)
-    frags = scene.rasterize(cam, RasterConfig())
+    raster = RasterConfig(threads=config.threads)
+    frags = scene.rasterize(cam, raster)
     fid = frags.face_id.reshape(-1)
     pix = np.flatnonzero(fid >= 0)
     face = np.take(fid, pix)
@@ -356,7 +362,7 @@ def _render(
     if body_scene is not None:
         gp = pix[face < garment_faces]
         if len(gp):
-            f, b, _ = body_scene.cast_pixels(cam, gp)
+            f, b, _ = body_scene.cast_pixels(cam, gp, raster)
             hit = np.flatnonzero(f >= 0)
             lin[gp[f < 0]] = srgb_to_linear(np.asarray(config.background))
             gh = np.take(gp, hit)

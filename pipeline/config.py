@@ -176,8 +176,18 @@ class PipelineConfig:
     """CPU threads torch uses for training and inference. One is the robust choice on a small
     machine: when anything else runs beside it, more threads spin against each other (measured
     here: 1.1 s per Joint2Coarse step with 2 threads beside other work, against milliseconds)."""
+    raster_threads: int = 1
+    """Threads of the stages' ray casts (``core.raster.RasterConfig.threads``, 0: every core):
+    the ground-truth renders, the proxy's rasterization for the renderers and the evaluation.
+    One, for the same reason: ``dng demo`` runs two stages side by side after the simulations,
+    and ray casts on every core took half the speed of Joint2Coarse beside them. The images are
+    the same whatever the number."""
 
     def __post_init__(self) -> None:
+        for name, least in (("loader_workers", 0), ("torch_threads", 1), ("raster_threads", 0)):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= least):
+                raise InputError(f"{name} must be an integer >= {least}, got {value!r}")
         if (
             self.sim_solver == "implicit"
             and self.simulate_target

@@ -29,7 +29,7 @@ from pipeline.deviations import deviations_markdown, from_json, methods_markdown
 from pipeline.stages.ablations import stage_ablation
 from pipeline.stages.baselines import stage_baselines
 from pipeline.stages.dataset import stage_dataset, stage_testset
-from pipeline.stages.evaluate import ours_to_dnr, stage_eval
+from pipeline.stages.evaluate import eval_motions, ours_to_dnr, stage_eval, stage_eval_motion
 from pipeline.stages.garment import stage_garment
 from pipeline.stages.joint2coarse import stage_joint2coarse
 from pipeline.stages.motions import stage_motions
@@ -59,16 +59,22 @@ _SECONDS_PER = {
     # (151 s for the quick preset's 700 frames, /tmp/q27)
     "embed_frame": 0.22,
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
-    "gt_sample": 0.14,  # ground-truth renders per training sample (3 frames) at 128 px
-    # Joint2Coarse, per step of the paper's model (ours trains first: 201 s for the quick
-    # preset's 7000 steps in /tmp/q30, with ours' three networks and tests beside part of it)
-    "j2c_step": 0.029,
-    "test_sample": 0.22,  # test-set ground truth per sample at 128 px
-    # renderer step at 128 px, the baselines training beside it (quick, L1 alone: 316 s for 600
-    # steps in /tmp/q27, a quick run from an empty folder)
-    "render_step": 0.53,
-    "eval_sample": 0.09,  # evaluation per test sample and method (each proxy counts)
-    "video_frame": 0.19,  # videos, per frame of a test motion
+    # ground-truth renders per training sample (3 frames) at 128 px (186 s for quick's 750 in
+    # /tmp/q62)
+    "gt_sample": 0.25,
+    # Joint2Coarse, per step of the paper's model (ours trains first: 247 s for the quick
+    # preset's 7000 steps, alone, on a copy of /tmp/q61's project)
+    "j2c_step": 0.035,
+    # test-set ground truth per sample at 128 px (112 s for quick's 280 in /tmp/q62)
+    "test_sample": 0.40,
+    # renderer step at 128 px, the baselines training beside it (quick, L1 alone: 439 s for 600
+    # steps in /tmp/q62, a quick run from an empty folder)
+    "render_step": 0.73,
+    # evaluation per test sample and method (each proxy counts): 268 s for 280 samples of 6
+    # methods in /tmp/q62, the videos beside it
+    "eval_sample": 0.16,
+    "video_frame": 0.34,  # videos, per frame of a test motion (98, 107 s for 300 in q61, q62)
+    "eval_report": 1.0,  # the evaluation's report, pooled from its motions' scores
 }
 
 
@@ -118,23 +124,90 @@ def stage_costs(config: PipelineConfig) -> list[float]:
         costs += [target * m.frames for m in [*checked, *tests]]
         train_samples = -(-config.train_motion.frames // config.frame_stride)
         costs += [c["gt_sample"] * pixels * train_samples * config.views_per_frame]
+        early, late = _share_sets(config)
+        costs += [cost for _, cost in early]  # in the main lane after the training renders
     costs += [c["j2c_step"] * joint2coarse_config(config).total_steps]
     if config.simulate_target:  # in the order of the stage table: Joint2Coarse (beside the
         # training renders), our renderer, then the second lane's baselines and ground-truth
         # sets, which count their share of the wall time (with two lanes, half their seconds)
         render = c["render_step"] * pixels * renderer_config(config).steps
         costs += [render]
-        # the baselines: three quarters of our renderer's seconds (291 s beside its 395 in
-        # /tmp/q61)
+        # the baselines: three quarters of our renderer's seconds (326 s beside its 439 in
+        # /tmp/q62)
         costs += [0.375 * render] if config.baselines else []
-        evaluated = [*checked, *tests, config.train_motion]  # protocols V, U, then P
-        test_samples = [-(-m.frames // config.test_stride) * config.test_views for m in evaluated]
-        costs += [0.5 * c["test_sample"] * pixels * n for n in test_samples]
+        costs += [0.5 * cost for _, cost in late]
         costs += [render] * len(config.ablations)
-        methods = 2 * (1 + len(config.baselines)) + len(config.ablations)
-        costs += [c["eval_sample"] * pixels * methods * sum(test_samples)]
-        costs += [c["video_frame"] * pixels * sum(m.frames for m in tests)]
+        # the evaluation's motions in the main lane, then the second lane's (the videos, then
+        # its motions) at half share, then the report that pools them
+        evaluation = _evaluation_costs(config)
+        mine, theirs = _share_evaluation(config)
+        costs += [evaluation[m] for m in mine]
+        costs += [0.5 * c["video_frame"] * pixels * sum(m.frames for m in tests)]
+        costs += [0.5 * evaluation[m] for m in theirs]
+        costs += [c["eval_report"]]
     return costs
+
+
+def _share_sets(config: PipelineConfig) -> tuple[list[tuple[Job, float]], list[tuple[Job, float]]]:
+    """The evaluation's ground-truth sets (:func:`stage_testset`: the renderers' validation
+    motion's, then the test motions', then the training motion's) with their expected seconds:
+    those the main lane can make after the training renders while Joint2Coarse still trains
+    beside them, and the rest, which follow the baselines in the second lane."""
+    c = _SECONDS_PER
+    train = config.train_motion
+    validation = renderer_validation_motion(config)
+    sets: list[tuple[Job, object]] = [
+        (("testset", f"validation set {validation.name} (cameras of its own)",
+          (validation.name, "validation")), validation)
+    ] if validation else []  # fmt: skip
+    sets += [
+        (("testset", f"test set {m.name}{' (the training motion)' if m is train else ''} "
+          "(unseen cameras)", (m.name, "test")), m)
+        for m in [*available_test_motions(config), train]
+    ]  # fmt: skip
+    pixels = (config.image_size / 128) ** 2
+    samples = -(-train.frames // config.frame_stride) * config.views_per_frame
+    main = c["gt_sample"] * pixels * samples  # the training renders
+    room = c["j2c_step"] * joint2coarse_config(config).total_steps - main
+    early, late = [], []
+    for job, motion in sets:
+        cost = (
+            c["test_sample"] * pixels * -(-motion.frames // config.test_stride) * config.test_views
+        )
+        fits = cost <= room and not late  # in order: the lanes keep the sets' order
+        (early if fits else late).append((job, cost))
+        room -= cost if fits else 0.0
+    return early, late
+
+
+def _evaluation_costs(config: PipelineConfig) -> dict[str, float]:
+    """Expected seconds of each motion's evaluation (:func:`stage_eval_motion`)."""
+    frames = {m.name: m.frames for m in [config.train_motion, *available_test_motions(config)]}
+    validation = renderer_validation_motion(config)
+    frames.update({validation.name: validation.frames} if validation else {})
+    methods = 2 * (1 + len(config.baselines)) + len(config.ablations)
+    per_sample = _SECONDS_PER["eval_sample"] * (config.image_size / 128) ** 2 * methods
+    return {
+        m: per_sample * -(-frames[m] // config.test_stride) * config.test_views
+        for m in eval_motions(config)
+    }
+
+
+def _share_evaluation(config: PipelineConfig) -> tuple[list[str], list[str]]:
+    """The evaluation's motions for the main lane and for the second, beside the videos: the
+    costliest first, each to the lane with less expected work so far; each lane's in the
+    evaluation's order."""
+    costs = _evaluation_costs(config)
+    tests = available_test_motions(config)
+    load = [0.0, _SECONDS_PER["video_frame"] * (config.image_size / 128) ** 2 * sum(
+        m.frames for m in tests
+    )]  # fmt: skip
+    lanes: list[set[str]] = [set(), set()]
+    for motion in sorted(costs, key=lambda m: -costs[m]):
+        lane = 0 if load[0] <= load[1] else 1
+        lanes[lane].add(motion)
+        load[lane] += costs[motion]
+    return [m for m in costs if m in lanes[0]], [m for m in costs if m in lanes[1]]
 
 
 class _Progress:
@@ -221,6 +294,7 @@ _CHILD_STAGES: dict[str, Callable] = {
     "joint2coarse": stage_joint2coarse,
     "baselines": _baselines,
     "testset": _testset,
+    "eval_motion": stage_eval_motion,
     "videos": stage_videos,
 }
 
@@ -415,30 +489,25 @@ def run_demo(
         j2c = progress.stage("joint2coarse", lambda: stage_joint2coarse(project, config, log))
     else:
         # Two lanes where there are two cores. Joint2Coarse needs only the proxies'
-        # simulations, the training renders only the targets': side by side. The
-        # evaluation's ground-truth sets are needed by it alone: they follow the baselines in
-        # the second lane, beside our renderer (both need Joint2Coarse's proxy and the
-        # training renders). Not in the main lane while Joint2Coarse trains: a process beside
-        # it slows it by half (355 s against 247 alone in /tmp/q61), and it is the longer.
-        sets: list[Job] = [
-            ("testset", f"validation set {name} (cameras of its own)", (name, "validation"))
-            for name in checked
-        ]
-        sets += [
-            ("testset", f"test set {name}{' (the training motion)' if name == train else ''} "
-             "(unseen cameras)", (name, "test"))
-            for name in [*tests, train]
-        ]  # fmt: skip
+        # simulations, the training renders only the targets': side by side, every ray cast
+        # on one thread (``raster_threads``: on every core they took half of Joint2Coarse's
+        # speed). The evaluation's ground-truth sets are needed by it alone: those that fit
+        # follow the training renders while Joint2Coarse trains, the rest the baselines in the
+        # second lane, beside our renderer (both need Joint2Coarse's proxy and the training
+        # renders).
+        early, late = _share_sets(config)
         lane = _beside(project, config, [("joint2coarse", "joint2coarse", ())], progress)
         try:
             progress.stage(
                 "dataset (ground-truth renders)", lambda: stage_dataset(project, config, log)
             )
+            for (_, name, args), _ in early:
+                progress.stage(name, lambda a=args: _testset(project, config, *a, log=log))
         finally:
             (j2c,) = lane.wait()
         named = ", ".join(config.baselines)
         first = [("baselines", f"baselines ({named})", ())] if config.baselines else []
-        lane = _beside(project, config, first + sets, progress)
+        lane = _beside(project, config, first + [job for job, _ in late], progress)
         try:
             renderer = progress.stage(
                 "neural renderer", lambda: stage_renderer(project, config, log)
@@ -450,19 +519,30 @@ def run_demo(
             progress.stage(
                 f"ablation {name}", lambda n=name: stage_ablation(project, config, n, log)
             )
-        # The videos need only our renderer and Joint2Coarse: beside the evaluation.
+        # The evaluation one motion at a time, shared between two lanes; the videos, which need
+        # only our renderer and Joint2Coarse, start the second. Then the report that pools them.
+        protocols = eval_motions(config)
+        named = {
+            m: f"evaluation of {m} (protocol {p}, unseen cameras)" for m, p in protocols.items()
+        }
+        mine, theirs = _share_evaluation(config) if _two_lanes(config) else (list(protocols), [])
+        second: list[Job] = [("videos", "videos (ground truth | neural render)", ())]
         lane = _beside(
-            project, config, [("videos", "videos (ground truth | neural render)", ())], progress
+            project, config, second + [("eval_motion", named[m], (m,)) for m in theirs], progress
         )
         try:
-            evaluation = progress.stage(
-                "evaluation (protocols V, U and P, unseen cameras)"
-                if checked
-                else "evaluation (protocols U and P, unseen cameras)",
-                lambda: stage_eval(project, config, log),
-            )
+            for motion in mine:
+                progress.stage(
+                    named[motion], lambda m=motion: stage_eval_motion(project, config, m, log)
+                )
         finally:
-            (videos,) = lane.wait()
+            videos = lane.wait()[0]
+        evaluation = progress.stage(
+            "evaluation (protocols V, U and P, unseen cameras)"
+            if checked
+            else "evaluation (protocols U and P, unseen cameras)",
+            lambda: stage_eval(project, config, log),
+        )
 
     report = {
         "preset": preset_name,
@@ -687,7 +767,7 @@ def _renderer_markdown(report: dict) -> list[str]:
                 )
     lines += ["", "Ground truth (top row) and every method on the same frames:", ""]
     shown = [*([v["motion"]] if v else []), *ev["motions"], *([p["motion"]] if p else [])]
-    lines += [f"![{m}](eval/compare-{m}.png)" for m in shown]
+    lines += [f"![{m}](eval/{m}/compare.png)" for m in shown]
     videos = report.get("videos") or {}
     if videos:
         lines += ["", "Videos of the unseen motions (simulation | neural render, the camera circles "

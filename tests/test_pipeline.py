@@ -90,12 +90,12 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     v = ev["validation"]
     assert v["motion"] == "val-walk" and set(v["methods"]) == set(ev["methods"])
     assert 0 < v["mse_masked_ratio_ours_to_dnr"] and "val-walk" not in ev["motions"]
-    assert "(protocol V)" in md and "](eval/compare-val-walk.png)" in md
+    assert "(protocol V)" in md and "](eval/val-walk/compare.png)" in md
     from pipeline.stages.dataset import VALIDATION_CAMERAS
 
     stage = json.loads((out / "testset/val-walk/stage.json").read_text())
     assert stage["params"]["cameras"] == VALIDATION_CAMERAS  # a stream no test set uses
-    assert "(protocol P, the paper's)" in md and "](eval/compare-dance.png)" in md
+    assert "(protocol P, the paper's)" in md and "](eval/dance/compare.png)" in md
     assert "(discriminator), falling linearly to zero from step 15." in md  # of 30
     # the baselines train on our schedule
     for kind in ("pix2pix", "dnr", "dnr-gan"):
@@ -109,22 +109,31 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     costs = stage_costs(PRESETS["smoke"])
     assert len(costs) == len(report["stage_seconds"])
     names = list(report["stage_seconds"])
-    assert names[0] == "motions" and names[-1].startswith("videos")
+    assert names[0] == "motions" and names[-1].startswith("evaluation (protocols V, U and P")
+    # the evaluation one motion at a time (in either lane), then the report that pools them
+    for motion in ("val-walk", "twirl", "cmu-01_01", "dance"):
+        assert any(n.startswith(f"evaluation of {motion} (protocol ") for n in names[:-1])
+        assert (out / "eval" / motion / "compare.png").is_file()
     # With a core for each, the simulations ran two at a time; the table keeps the stages' order.
     sims = [n for n in names if n.startswith("simulate ")]
     assert sims[0] == "simulate dance (proxy)" and sims[-1].endswith("(target)")
     if (os.cpu_count() or 1) >= 2:
         assert report["simulation_processes"] == 2 and "simulations ran 2 at a time" in md
         # Joint2Coarse beside the ground-truth renders, the baselines (then the ground-truth
-        # sets left) beside our renderer, the videos beside the evaluation, in a second
-        # process; their stages keep their names and the stage table has them.
+        # sets) beside our renderer, the videos (then some of the evaluation's motions) beside
+        # the rest of the evaluation, in a second process; their stages keep their names and
+        # the stage table has them.
         beside = report["stages_beside"]
         assert beside[0] == "joint2coarse" and beside[1] == "baselines (pix2pix, dnr, dnr-gan)"
-        assert beside[-1] == "videos (ground truth | neural render)"
+        videos = beside.index("videos (ground truth | neural render)")
+        assert beside[videos + 1 :] and all(
+            n.startswith("evaluation of ") for n in beside[videos + 1 :]
+        )
+        assert len([n for n in names if n.startswith("evaluation of ")]) > len(beside[videos + 1 :])
         assert "ran in a second process beside" in md
         assert names.index("joint2coarse") > names.index("dataset (ground-truth renders)")
         assert names.index(beside[1]) > names.index("joint2coarse")
-        assert names.index(beside[-1]) > names.index(beside[1])
+        assert names.index(beside[videos]) > names.index(beside[1])
     # Every ground-truth set ran once, in one lane or the other, before the evaluation.
     sets = [n for n in names if n.startswith(("validation set ", "test set "))]
     assert len(sets) == 4 and sets[0].startswith("validation set val-walk")
@@ -260,6 +269,8 @@ def test_renderer_stage_trains_and_reports(smoke):
 
 
 def test_test_sets_come_from_unseen_cameras(smoke, tmp_path):
+    import torch
+
     from training.dataset import GarmentDataset
 
     out, _ = smoke
@@ -271,6 +282,8 @@ def test_test_sets_come_from_unseen_cameras(smoke, tmp_path):
         assert not train_cams & {json.dumps(s["camera"]["extrinsic"]) for s in index["samples"]}
         data = GarmentDataset(out, source="joint2coarse", split=name)
         s = data[0]
+        one = GarmentDataset(out, source="joint2coarse", split=name, threads=1)[0]
+        assert all(torch.equal(s[k], one[k]) for k in s)  # one ray-casting thread, same maps
         assert s["target"].shape[-1] == PRESETS["smoke"].image_size
         assert s["proxy_mask"].sum() > 0 and s["target_mask"].sum() > 0
     with pytest.raises(InputError, match="run the testset stage first"):
@@ -398,6 +411,11 @@ def test_settings_round_trip_and_errors(tmp_path):
     proj.save_settings({"pipeline": {"garment": "x"}})
     with pytest.raises(InputError, match="project.json: malformed pipeline settings"):
         project_config(proj)
+    from dataclasses import replace
+
+    for name, bad in (("torch_threads", 0), ("raster_threads", -1), ("loader_workers", 1.5)):
+        with pytest.raises(InputError, match=f"{name} must be an integer >= "):
+            replace(preset("quick"), **{name: bad})
 
 
 def test_overrides_reach_their_network_and_dnr_with_our_loss():

@@ -130,6 +130,16 @@ def test_render_views_matches_single_views(scene):
         assert np.array_equal(one.image, gt.image) and np.array_equal(one.background, gt.background)
 
 
+def test_ray_casting_threads_do_not_change_the_images(scene):
+    skirt, body = scene
+    cams = random_cameras(2, 7, CameraRigConfig(width=32, height=40))
+    every = render_views(skirt, body, cams, CFG)
+    one = render_views(skirt, body, cams, ShadingConfig(**{**vars(CFG), "threads": 1}))
+    for a, b in zip(every, one):
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.background, b.background)
+        assert np.array_equal(a.coverage, b.coverage)
+
+
 def test_bad_configs_raise(scene):
     skirt, body = scene
     with pytest.raises(InputError):
@@ -138,6 +148,8 @@ def test_bad_configs_raise(scene):
         Material(color=(1.2, 0, 0))
     with pytest.raises(InputError):
         ShadingConfig(supersample=0)
+    with pytest.raises(InputError, match="threads must be an integer >= 0, got -1"):
+        ShadingConfig(threads=-1)
     with pytest.raises(InputError, match="UVs"):
         render_ground_truth(Mesh(skirt.vertices, skirt.faces), body, CAM, CFG)
 

@@ -19,7 +19,7 @@ from core.camera import camera_from_dict
 from core.errors import InputError
 from core.features import FeatureConfig, interpolate, joint_window, vertex_motion_features
 from core.mesh import load_mesh
-from core.raster import rasterize
+from core.raster import RasterConfig, rasterize
 from core.shading import colorize_scalar, colorize_uv, contact_sheet, headlight_shading, write_png
 
 #: Keys and shapes of one sample (channels first; a DataLoader adds a leading batch axis).
@@ -113,6 +113,8 @@ class GarmentDataset:
         (:data:`VERTEX_MOTION_SAMPLE_KEYS`) instead of the (3, 95, H, W) map, for the trainer
         to interpolate on its device (:func:`training.renderer.data.motion_maps`); what a
         trainer on a GPU asks for (:meth:`with_motion_per_vertex`)
+    threads : the proxy's ray casts' threads (:attr:`core.raster.RasterConfig.threads`; 0: every
+        core); the samples are the same whatever the number
     """
 
     def __init__(
@@ -123,6 +125,7 @@ class GarmentDataset:
         split: str | None = None,
         proxy_positions: np.ndarray | None = None,
         motion_per_vertex: bool = False,
+        threads: int = 0,
     ):
         from core.motion.load import load_motion
         from training.joint2coarse import joint2coarse_inputs
@@ -154,6 +157,7 @@ class GarmentDataset:
         self.source = source
         self.split = split
         self.motion_per_vertex = motion_per_vertex
+        self.raster = RasterConfig(threads=threads)
         self.proxy = load_proxy_frames(self.root, positions)
         self._seamless_faces = self.proxy.seam_map[self.proxy.faces]
         motion = load_motion(self.root / "motions" / f"{motion_name}.bvh")
@@ -183,7 +187,7 @@ class GarmentDataset:
         headlight shading (1, H, W) at frame t; with ``motion_per_vertex`` the motion
         features' per-vertex form (:data:`VERTEX_MOTION_SAMPLE_KEYS`, one frame) instead."""
         v = self.proxy.vertices(t)
-        frags = rasterize(v, self.proxy.faces, camera)
+        frags = rasterize(v, self.proxy.faces, camera, self.raster)
         window = joint_window(self.joints, t, self.features.frame_offsets)
         feats = vertex_motion_features(v, window, self.features.sigma)
         if motion_per_vertex:

@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Joint2Coarse's proxy, and on the simulated proxy) and every trained baseline; "
             "report per-frame MSE (mean and std, pixel values in [0, 1]), PSNR, SSIM, their "
             "garment-region versions, flicker, and FID / video FID when an InceptionV3 weights "
-            "file is given. Writes PROJECT/eval/report.json and compare-MOTION.png. Builds the "
+            "file is given. Writes PROJECT/eval/report.json and PROJECT/eval/MOTION/compare.png. "
+            "Builds the "
             "test sets first when they are missing; the renderer and baselines must be trained "
             "(dng train renderer|baselines PROJECT)."
         ),

@@ -30,7 +30,9 @@ def stage_baseline(
 
     def work(out: Path) -> list[str]:
         torch.set_num_threads(config.torch_threads)
-        data = GarmentDataset(project.root, source=config.renderer_source)
+        data = GarmentDataset(
+            project.root, source=config.renderer_source, threads=config.raster_threads
+        )
         start = time.perf_counter()
         result = train_baseline(
             kind, data, out, cfg, progress=progress, workers=config.loader_workers

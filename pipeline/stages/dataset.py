@@ -14,7 +14,7 @@ from core.camera import CameraRigConfig, camera_to_dict, random_cameras
 from core.fileio import write_json
 from core.mesh import Mesh, load_mesh
 from core.project import Project, fingerprint
-from core.shading import render_views, write_png
+from core.shading import ShadingConfig, render_views, write_png
 from core.sim import load_cache
 from pipeline.config import Log, PipelineConfig, quiet
 from pipeline.stages.motions import load_project_motion
@@ -127,11 +127,12 @@ def _render_samples(
     # Render frame by frame: each frame is seen by the cameras of samples t-1, t, t+1.
     strips: dict[tuple[int, int], list] = {key: [None] * 3 for key in cams}
     frames = sorted({t + d for t in centres for d in (-1, 0, 1)})
+    shading = ShadingConfig(threads=config.raster_threads)
     for f in tqdm(frames, desc=desc, unit="frame", leave=False):
         wanted = [(t, k, f - t + 1) for (t, k) in cams if abs(f - t) <= 1]
         garment = Mesh(cache.positions[f], cache.faces)
         body_mesh = Mesh(body_frames[f], body.faces)
-        views_f = render_views(garment, body_mesh, [cams[(t, k)] for t, k, _ in wanted])
+        views_f = render_views(garment, body_mesh, [cams[(t, k)] for t, k, _ in wanted], shading)
         for (t, k, slot), gt in zip(wanted, views_f):
             strips[(t, k)][slot] = gt
             if all(s is not None for s in strips[(t, k)]):

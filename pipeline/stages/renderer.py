@@ -45,7 +45,9 @@ def stage_renderer(
 
     def work(out: Path) -> list[str]:
         torch.set_num_threads(config.torch_threads)
-        data = GarmentDataset(project.root, source=config.renderer_source)
+        data = GarmentDataset(
+            project.root, source=config.renderer_source, threads=config.raster_threads
+        )
         start = time.perf_counter()
         result = train_renderer(data, out, cfg, progress=progress, workers=config.loader_workers)
         seconds = time.perf_counter() - start

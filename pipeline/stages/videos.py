@@ -10,7 +10,7 @@ import numpy as np
 
 from core.fileio import write_json
 from core.project import Project
-from core.shading import contact_sheet
+from core.shading import ShadingConfig, contact_sheet
 from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
 from pipeline.playback import FrameWriter, Playback, load_motion_for
 
@@ -31,7 +31,7 @@ def stage_videos(project: Project, config: PipelineConfig, log: Log = quiet) -> 
 
     def work(out: Path) -> list[str]:
         torch.set_num_threads(config.torch_threads)
-        pb = Playback(project.root)
+        pb = Playback(project.root, shading=ShadingConfig(threads=config.raster_threads))
         report = {}
         for name in tests:
             pb.set_motion(load_motion_for(project, name))  # a project motion: has its truth
