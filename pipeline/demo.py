@@ -35,7 +35,7 @@ from pipeline.stages.joint2coarse import stage_joint2coarse
 from pipeline.stages.motions import stage_motions
 from pipeline.stages.proxy import stage_proxy
 from pipeline.stages.renderer import stage_renderer
-from pipeline.stages.simulate import stage_simulate
+from pipeline.stages.simulate import stage_embedding, stage_simulate
 from pipeline.stages.videos import stage_videos
 
 #: Seconds per unit of work of each stage on the 2-core development machine, from the quick
@@ -58,6 +58,9 @@ _SECONDS_PER = {
     # the detailed target embedded in the proxy's simulation and kept out of the body, per frame
     # (151 s for the quick preset's 700 frames, /tmp/q27)
     "embed_frame": 0.22,
+    # the target bound to the proxy, once for every clip (16.5 s for quick's 39k-vertex target,
+    # its twirl's stage under cProfile)
+    "embedding": 16.0,
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
     # ground-truth renders per training sample (3 frames) at 128 px (186 s for quick's 750 in
     # /tmp/q62)
@@ -113,6 +116,8 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     motions = [config.train_motion, *available_extra_motions(config)]
     motions += [*available_validation_motions(config), *tests]
     costs = [c["motion"] * len(motions)] + [c["setup"]] * 2
+    embedded = config.simulate_target and config.target_mode == "embed"
+    costs += [c["embedding"]] if embedded else []
     costs += [sim(config.train_motion.frames)]
     costs += [target * config.train_motion.frames] if config.simulate_target else []
     costs += [sim(m.frames) for m in available_extra_motions(config)]
@@ -274,6 +279,9 @@ def _sim_bar(desc: str):
     return update
 
 
+#: The stage table's name of :func:`stage_embedding`.
+EMBEDDING_STAGE = "embedding (the target bound to the proxy)"
+
 #: Simulations run at once where there is a core for each (warp's CPU kernels use one thread).
 SIM_PROCESSES = 2
 
@@ -320,11 +328,16 @@ def _simulate_all(
     Where there is a core for each, :data:`SIM_PROCESSES` at a time, each in a spawned process:
     each target once its motion's proxy has ended (it is embedded in, or follows, the proxy);
     the stage table keeps the order of ``sims``. Otherwise one after the other, with a progress
-    bar each. Returns how many ran at once.
+    bar each. Embedded targets read one binding to the proxy (:func:`stage_embedding`): the
+    main process makes it while the first proxies simulate (first, with one process). Returns
+    how many ran at once.
     """
     names = {sim: f"simulate {sim[0]} ({sim[1]})" for sim in sims}
     workers = min(SIM_PROCESSES, os.cpu_count() or 1, len(sims))
+    bind = config.target_mode == "embed" and any(which == "target" for _, which in sims)
     if workers < 2:
+        if bind:
+            progress.stage(EMBEDDING_STAGE, lambda: stage_embedding(project, config, progress.log))
         for (motion, which), name in names.items():
             bar = _sim_bar(name)
             progress.stage(
@@ -362,6 +375,11 @@ def _simulate_all(
                     targets.remove(job)
                 future = pool.submit(_stage_worker, "simulate", str(project.root), params, *job)
                 running[future] = job
+            if bind:  # before any target can start: none does before its proxy has ended
+                progress.stage(
+                    EMBEDDING_STAGE, lambda: stage_embedding(project, config, progress.log)
+                )
+                bind = False
             for future in wait(running, return_when=FIRST_COMPLETED).done:
                 motion, which = running.pop(future)
                 seconds, lines, _ = future.result()

@@ -117,6 +117,12 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     # With a core for each, the simulations ran two at a time; the table keeps the stages' order.
     sims = [n for n in names if n.startswith("simulate ")]
     assert sims[0] == "simulate dance (proxy)" and sims[-1].endswith("(target)")
+    # every embedded target read one binding to the proxy, made before the first of them
+    binding = names.index("embedding (the target bound to the proxy)")
+    assert names.index("proxy") < binding < names.index(sims[0])
+    for clip in ("dance", "val-walk", "twirl", "cmu-01_01"):
+        record = json.loads((out / "sim" / f"{clip}-target" / "stage.json").read_text())
+        assert record["fingerprint"] and (out / "embedding" / "embedding.npz").is_file()
     if (os.cpu_count() or 1) >= 2:
         assert report["simulation_processes"] == 2 and "simulations ran 2 at a time" in md
         # Joint2Coarse beside the ground-truth renders, the baselines (then the ground-truth

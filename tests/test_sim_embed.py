@@ -52,6 +52,28 @@ def test_bad_input_is_refused(skirts):
         drive(e, proxy.vertices[None, :5])
 
 
+def test_a_saved_embedding_drives_the_target_to_the_bit(tmp_path):
+    from core.sim.embed import load_embedding, save_embedding
+
+    proxy = frustum_skirt()
+    vertices, faces = layered_target()
+    e = embed(vertices, proxy.vertices, proxy.faces, target_faces=faces)
+    save_embedding(tmp_path / "e.npz", e)
+    back = load_embedding(tmp_path / "e.npz")
+    moved = proxy.vertices[None] * np.array([[[1.1, 0.9, 1.0]]], np.float32)
+    frames = np.concatenate([proxy.vertices[None], moved])
+    assert np.array_equal(drive(back, frames), drive(e, frames))
+    assert (back.weight != e.weight).nnz == 0 and back.weight.shape == e.weight.shape
+    assert np.array_equal(back.anchor, e.anchor) and back.anchor.dtype == e.anchor.dtype
+    with pytest.raises(InputError, match="no such embedding file") as err:
+        load_embedding(tmp_path / "none.npz")
+    assert "none.npz" in str(err.value)
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="not an embedding") as err:
+        load_embedding(tmp_path / "bad.npz")
+    assert "bad.npz" in str(err.value)
+
+
 def layered_target(around: int = 72, rings: int = 34) -> tuple[np.ndarray, np.ndarray]:
     """A detailed two-tier skirt around the 24 x 12 proxy: a fine inner layer on the proxy and
     an outer layer 2 cm outside it (one mesh, two pieces)."""

@@ -77,13 +77,16 @@ stretch is larger still.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+import zipfile
+from dataclasses import dataclass, fields
 
 import numpy as np
 import scipy.sparse as sp
 
 from core.body.colliders import DEFAULT_MARGIN_M, capsule_distance, push_out_of_capsules
 from core.errors import InputError
+from core.fileio import write_npz
 from core.mesh import unique_edges, vertex_normals
 from core.proxy.metrics import correspond
 
@@ -139,6 +142,43 @@ class Embedding:
     target_edges: np.ndarray
     target_lengths: np.ndarray
     anchor: np.ndarray
+
+
+def save_embedding(path: str | os.PathLike, embedding: Embedding) -> None:
+    """Write ``embedding`` as ``.npz`` (atomically), which :func:`load_embedding` reads back to
+    the bit: each sparse matrix as its CSR arrays."""
+    arrays = {}
+    for f in fields(Embedding):
+        value = getattr(embedding, f.name)
+        if sp.issparse(value):
+            csr = value.tocsr()
+            arrays.update({f"{f.name}.{part}": getattr(csr, part) for part in _CSR})
+            arrays[f"{f.name}.shape"] = np.asarray(csr.shape, np.int64)
+        else:
+            arrays[f.name] = np.asarray(value)
+    write_npz(path, **arrays)
+
+
+def load_embedding(path: str | os.PathLike) -> Embedding:
+    """Read an embedding written by :func:`save_embedding`; InputError naming the file if it is
+    missing or is not one."""
+    if not os.path.isfile(path):
+        raise InputError("no such embedding file", path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            values = {}
+            for f in fields(Embedding):
+                if f"{f.name}.shape" in z:
+                    parts = tuple(z[f"{f.name}.{part}"] for part in _CSR)
+                    values[f.name] = sp.csr_matrix(parts, shape=tuple(z[f"{f.name}.shape"]))
+                else:
+                    values[f.name] = z[f.name]
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise InputError(f"not an embedding ({exc})", path) from None
+    return Embedding(**values)
+
+
+_CSR = ("data", "indices", "indptr")
 
 
 @dataclass(frozen=True)

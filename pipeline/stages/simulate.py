@@ -93,6 +93,36 @@ def proxy_thickness(project: Project, proxy: Mesh) -> np.ndarray:
     return layer_thickness(proxy.vertices, proxy.faces, target.vertices, target_file)
 
 
+def stage_embedding(project: Project, config: PipelineConfig, log: Log = quiet) -> Path:
+    """The detailed target bound to the proxy at rest (``target_mode="embed"``), which every
+    clip's embedded target reads: ``embedding/embedding.npz`` (it depends on the two garments
+    alone, not on a motion). Returns its path."""
+    from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, embed, save_embedding
+
+    target_file = project.path("garment", "target.obj")
+    proxy_file = project.path("proxy", "positions.obj")
+    params = {
+        "method": "smoothed-binding-deformation",
+        "smoothing_m": SMOOTHING_M,
+        "frame_smoothing_m": FRAME_SMOOTHING_M,
+    }
+
+    def work(out: Path) -> list[str]:
+        target, _ = load_mesh(target_file)
+        proxy, _ = load_mesh(proxy_file)
+        start = time.perf_counter()
+        embedding = embed(target.vertices, proxy.vertices, proxy.faces, target_faces=target.faces)
+        save_embedding(out / "embedding.npz", embedding)
+        log(
+            f"  the target ({target.num_vertices} vertices) bound to the proxy "
+            f"({proxy.num_vertices}) in {time.perf_counter() - start:.1f} s"
+        )
+        return ["embedding.npz"]
+
+    project.run_stage("embedding", params, [target_file, proxy_file], work)
+    return project.path("embedding", "embedding.npz")
+
+
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
     """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
     simulation: edge stretch and compression against the rest garment, tears, penetration into
@@ -104,12 +134,13 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         BodyContact,
         ContactSettings,
         drive,
-        embed,
+        load_embedding,
         strain_stats,
     )
 
     target_file = project.path("garment", "target.obj")
     proxy_file = project.path("proxy", "positions.obj")
+    embedding_file = stage_embedding(project, config, log)
     proxy_cache = project.path(f"sim/{motion_name}-proxy", "cache.npz")
     stage = f"sim/{motion_name}-target"
     params = {
@@ -132,8 +163,7 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         )
         contact = BodyContact(ends, radii) if config.target_contact else None
         start = time.perf_counter()
-        embedding = embed(target.vertices, proxy.vertices, proxy.faces, target_faces=target.faces)
-        positions = drive(embedding, cache.positions, contact)
+        positions = drive(load_embedding(embedding_file), cache.positions, contact)
         seconds = time.perf_counter() - start
         strain = strain_stats(positions, target.vertices, target.faces)
         depth = penetration_depths(positions, ends, radii)
@@ -168,7 +198,8 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         )
         return ["cache.npz", "report.json", "sheet.png"]
 
-    project.run_stage(stage, params, [target_file, proxy_file, proxy_cache], work)
+    inputs = [target_file, proxy_file, embedding_file, proxy_cache]
+    project.run_stage(stage, params, inputs, work)
     return project.path(stage, "cache.npz")
 
 
