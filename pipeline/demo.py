@@ -58,9 +58,9 @@ _SECONDS_PER = {
     # the detailed target embedded in the proxy's simulation and kept out of the body, per frame
     # (151 s for the quick preset's 700 frames, /tmp/q27)
     "embed_frame": 0.22,
-    # the target bound to the proxy, once for every clip (16.5 s for quick's 39k-vertex target,
-    # its twirl's stage under cProfile)
-    "embedding": 16.0,
+    # the target bound to the proxy, once for every clip (quick's 39k-vertex target: 33 and 26 s
+    # in /tmp/q64 and /tmp/q65, beside two simulations)
+    "embedding": 30.0,
     "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
     # ground-truth renders per training sample (3 frames) at 128 px (186 s for quick's 750 in
     # /tmp/q62)
@@ -147,7 +147,7 @@ def stage_costs(config: PipelineConfig) -> list[float]:
         evaluation = _evaluation_costs(config)
         mine, theirs = _share_evaluation(config)
         costs += [evaluation[m] for m in mine]
-        costs += [0.5 * c["video_frame"] * pixels * sum(m.frames for m in tests)]
+        costs += [0.5 * _videos_cost(config)]
         costs += [0.5 * evaluation[m] for m in theirs]
         costs += [c["eval_report"]]
     return costs
@@ -176,13 +176,22 @@ def _share_sets(config: PipelineConfig) -> tuple[list[tuple[Job, float]], list[t
     room = c["j2c_step"] * joint2coarse_config(config).total_steps - main
     early, late = [], []
     for job, motion in sets:
-        cost = (
-            c["test_sample"] * pixels * -(-motion.frames // config.test_stride) * config.test_views
-        )
+        cost = c["test_sample"] * pixels * _test_samples(config, motion.frames)
         fits = cost <= room and not late  # in order: the lanes keep the sets' order
         (early if fits else late).append((job, cost))
         room -= cost if fits else 0.0
     return early, late
+
+
+def _test_samples(config: PipelineConfig, frames: int) -> int:
+    """Samples of a ground-truth set (:func:`stage_testset`) of a clip this long."""
+    return -(-frames // config.test_stride) * config.test_views
+
+
+def _videos_cost(config: PipelineConfig) -> float:
+    """Expected seconds of the videos (:func:`stage_videos`)."""
+    frames = sum(m.frames for m in available_test_motions(config))
+    return _SECONDS_PER["video_frame"] * (config.image_size / 128) ** 2 * frames
 
 
 def _evaluation_costs(config: PipelineConfig) -> dict[str, float]:
@@ -192,10 +201,7 @@ def _evaluation_costs(config: PipelineConfig) -> dict[str, float]:
     frames.update({validation.name: validation.frames} if validation else {})
     methods = 2 * (1 + len(config.baselines)) + len(config.ablations)
     per_sample = _SECONDS_PER["eval_sample"] * (config.image_size / 128) ** 2 * methods
-    return {
-        m: per_sample * -(-frames[m] // config.test_stride) * config.test_views
-        for m in eval_motions(config)
-    }
+    return {m: per_sample * _test_samples(config, frames[m]) for m in eval_motions(config)}
 
 
 def _share_evaluation(config: PipelineConfig) -> tuple[list[str], list[str]]:
@@ -203,10 +209,7 @@ def _share_evaluation(config: PipelineConfig) -> tuple[list[str], list[str]]:
     costliest first, each to the lane with less expected work so far; each lane's in the
     evaluation's order."""
     costs = _evaluation_costs(config)
-    tests = available_test_motions(config)
-    load = [0.0, _SECONDS_PER["video_frame"] * (config.image_size / 128) ** 2 * sum(
-        m.frames for m in tests
-    )]  # fmt: skip
+    load = [0.0, _videos_cost(config)]
     lanes: list[set[str]] = [set(), set()]
     for motion in sorted(costs, key=lambda m: -costs[m]):
         lane = 0 if load[0] <= load[1] else 1
@@ -540,18 +543,18 @@ def run_demo(
         # The evaluation one motion at a time, shared between two lanes; the videos, which need
         # only our renderer and Joint2Coarse, start the second. Then the report that pools them.
         protocols = eval_motions(config)
-        named = {
+        headers = {
             m: f"evaluation of {m} (protocol {p}, unseen cameras)" for m, p in protocols.items()
         }
         mine, theirs = _share_evaluation(config) if _two_lanes(config) else (list(protocols), [])
         second: list[Job] = [("videos", "videos (ground truth | neural render)", ())]
         lane = _beside(
-            project, config, second + [("eval_motion", named[m], (m,)) for m in theirs], progress
+            project, config, second + [("eval_motion", headers[m], (m,)) for m in theirs], progress
         )
         try:
             for motion in mine:
                 progress.stage(
-                    named[motion], lambda m=motion: stage_eval_motion(project, config, m, log)
+                    headers[motion], lambda m=motion: stage_eval_motion(project, config, m, log)
                 )
         finally:
             videos = lane.wait()[0]
