@@ -55,7 +55,7 @@ def test_presets_and_config_checks():
     assert cpu.image_size == 128 and paper.image_size == 512
     assert paper.in_channels == 64 + 95 == 159
     assert paper.image_size // paper.stride == 16 and paper.max_width == 512
-    assert RendererConfig(use_motion=False).in_channels == 64
+    assert RendererConfig(use_motion=False).in_channels == 64 + 1  # texture + coverage mask
     assert RendererConfig.from_dict(paper.to_dict()) == paper
     with pytest.raises(InputError, match="divisible"):
         RendererConfig(image_size=100, n_down=3)
@@ -113,7 +113,10 @@ def test_paper_latent_and_ablation_without_motion():
     cfg = PRESETS["tiny"].replace(use_motion=False)
     net = RenderNet(cfg)
     uv, _, mask = _inputs(cfg, 1, 8)
-    assert net.input_features(uv, None, mask).shape == (1, cfg.texture_out_channels, 8, 8)
+    x = net.input_features(uv, None, mask)
+    assert x.shape == (1, cfg.texture_out_channels + 1, 8, 8)
+    # the last channel tells the network where the proxy is, as DNR's input does
+    assert torch.equal(x[:, -1:], mask)
     rgb, _ = net(uv, None, mask, uv, None, mask, torch.rand(1, 3, 8, 8))
     assert rgb.shape == (1, 3, 8, 8)
 

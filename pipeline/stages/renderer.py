@@ -42,6 +42,8 @@ def stage_renderer(
     source_file = proxy_source_file(project.root, config.renderer_source, train)
     index = project.path("dataset", "samples.json")
     params = {"renderer": cfg.to_dict(), "source": config.renderer_source}
+    if not cfg.use_motion:  # its input gained the coverage mask: retrain older ablations
+        params["inputs"] = "texture+coverage"
 
     def work(out: Path) -> list[str]:
         torch.set_num_threads(config.torch_threads)

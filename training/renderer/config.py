@@ -38,7 +38,15 @@ class RendererConfig(PlainConfig):
     motion_channels: int = MOTION_CHANNELS
     """Channels of the motion-feature map (19 joints x 5 frames)."""
     use_motion: bool = True
-    """Feed the motion features to the network (False: the "without motion features" ablation)."""
+    """Feed the motion features to the network (False: the "without motion features" ablation,
+    whose input is the texture sample and the proxy's coverage mask, one channel, as DNR's
+    input has it). The motion features, zero off the proxy, also tell the network where the
+    proxy is; on the texture alone, whose texels start at N(0, 0.01), the blend's mask never
+    left the background on the quick project (garment-region MSE 0.2276 on its validation
+    motion after 100 steps, and an empty mask in the previews after 600: ``python
+    benchmarks/renderer_validation.py P --method ours --set use_motion=false --steps 100``), so
+    the ablation measured the missing coverage, not the motion features. Model files of the
+    ablation written before the mask channel fail to load (their weights do not match)."""
     use_temporal: bool = True
     """Condition the SPADE block on frame t-1's latent and show the discriminator pairs of
     consecutive frames (False: the "no temporal conditioning" ablation: SPADE conditioned on
@@ -258,8 +266,9 @@ class RendererConfig(PlainConfig):
 
     @property
     def in_channels(self) -> int:
-        """Network input channels: texture + motion (159 in the paper), texture only without motion."""
-        return self.texture_out_channels + (self.motion_channels if self.use_motion else 0)
+        """Network input channels: texture + motion (159 in the paper); without motion, texture
+        + the proxy's coverage mask."""
+        return self.texture_out_channels + (self.motion_channels if self.use_motion else 1)
 
     def replace(self, **changes) -> RendererConfig:
         """A copy with some fields changed (validated)."""

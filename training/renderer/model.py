@@ -287,13 +287,14 @@ class RenderNet(nn.Module):
     def input_features(
         self, uv: torch.Tensor, motion: torch.Tensor | None, mask: torch.Tensor
     ) -> torch.Tensor:
-        """Step 1: texture sample (+ motion features): (B, in_channels, H, W), 0 off the proxy.
+        """Step 1: texture sample + motion features (without motion: + the mask): (B,
+        in_channels, H, W), 0 off the proxy.
 
         uv (B, 2, H, W), motion (B, 95, H, W) or None without motion, mask (B, 1, H, W).
         """
         tex = self.texture(uv, mask)
         if not self.config.use_motion:
-            return tex
+            return torch.cat([tex, mask.to(tex.dtype)], 1)
         return torch.cat([tex, motion.to(tex.dtype) * mask], 1)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
