@@ -350,6 +350,14 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "is chosen",
             "settings chosen on the figures they report would flatter them",
         )
+    if "no-motion" in config.ablations:
+        add(
+            "ablation",
+            "without motion features: the neural texture's sample alone",
+            "the texture's sample and the proxy's coverage mask (one channel, as DNR's input)",
+            "on the texture alone the blend's mask never left the background in 600 steps "
+            "(`use_motion`'s docstring): the ablation would measure the missing coverage",
+        )
     return rows
 
 

@@ -59,6 +59,10 @@ def test_rows_follow_the_settings():
     with pytest.raises(InputError, match="sim_solver='style3d'"):
         replace(quick, target_mode="simulate")
     assert layered not in {d.paper: d.here for d in deviations(thin)}[truth]
+    # the no-motion ablation's input (the coverage mask) is named where it runs
+    no_motion = "without motion features: the neural texture's sample alone"
+    assert no_motion not in {d.paper for d in deviations(quick)}
+    assert "coverage mask" in {d.paper: d.here for d in deviations(PRESETS["paper"])}[no_motion]
 
 
 def test_methods_count_their_parameters():
