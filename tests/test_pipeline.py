@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from core.errors import InputError
-from core.project import Project
+from core.project import Project, fingerprint
 from pipeline.config import PRESETS, PipelineConfig, preset, project_config
 
 
@@ -118,11 +118,15 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
     sims = [n for n in names if n.startswith("simulate ")]
     assert sims[0] == "simulate dance (proxy)" and sims[-1].endswith("(target)")
     # every embedded target read one binding to the proxy, made before the first of them
-    binding = names.index("embedding (the target bound to the proxy)")
+    from pipeline.demo import EMBEDDING_STAGE
+
+    binding = names.index(EMBEDDING_STAGE)
     assert names.index("proxy") < binding < names.index(sims[0])
     for clip in ("dance", "val-walk", "twirl", "cmu-01_01"):
         record = json.loads((out / "sim" / f"{clip}-target" / "stage.json").read_text())
-        assert record["fingerprint"] and (out / "embedding" / "embedding.npz").is_file()
+        inputs = [out / "garment" / "target.obj", out / "proxy" / "positions.obj"]
+        inputs += [out / "embedding" / "embedding.npz", out / "sim" / f"{clip}-proxy" / "cache.npz"]
+        assert record["fingerprint"] == fingerprint(record["params"], inputs)  # the binding's in
     if (os.cpu_count() or 1) >= 2:
         assert report["simulation_processes"] == 2 and "simulations ran 2 at a time" in md
         # Joint2Coarse beside the ground-truth renders, the baselines (then the ground-truth
