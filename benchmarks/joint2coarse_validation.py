@@ -1,7 +1,8 @@
 """Joint2Coarse on a project's validation motions: the figures every choice is made on.
 
 Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
-[--seeds 0 1 2] [--without NAME ...] [--fit-validation] [--json] [--test]``
+[--seeds 0 1 2] [--without NAME ...] [--train-on NAME ...] [--fit-validation] [--json]
+[--test]``
 
 Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
 joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
@@ -13,7 +14,9 @@ seeds, the mean over seeds, and the training time. ``--test`` adds the test moti
 them, never choose on them. ``--without`` leaves training motions out (names or shell patterns,
 e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-validation`` trains
 on the validation motions too: how closely the model fits motions it has seen, against what it
-does on motions it has not (never a choice: a diagnosis). ``--no-turn-lags`` measures ours
+does on motions it has not (never a choice: a diagnosis). ``--train-on`` moves some validation
+motions into training and scores the others: what training on validation motions too would be
+worth to motions it has not seen. ``--no-turn-lags`` measures ours
 without the turning-rate features over longer lags, ``--every-joint-dynamic`` with every
 joint's velocities and accelerations instead of ``DYNAMIC_JOINTS``', ``--long-lags`` with
 every dynamic feature over twice the lags too (with ``--set window=66``) (ablations inside this
@@ -69,6 +72,11 @@ def main() -> None:
         help="diagnosis: train on the validation motions too (how closely it fits what it saw)",
     )  # fmt: skip
     ap.add_argument(
+        "--train-on", nargs="+", default=[], metavar="NAME",
+        help="validation motions to train on too (names or shell patterns), scored no more: "
+        "what training on part of the validation split is worth to the rest of it",
+    )  # fmt: skip
+    ap.add_argument(
         "--without", nargs="+", default=[], metavar="NAME",
         help="training motions to leave out (names or shell patterns such as '*-spin')",
     )  # fmt: skip
@@ -116,6 +124,13 @@ def main() -> None:
     splits["train"] = [n for n in splits["train"] if n not in left_out]
     if not splits["train"]:
         ap.error("--without leaves no training motion")
+    moved = [n for n in splits["validation"] if any(fnmatch.fnmatch(n, p) for p in args.train_on)]
+    if args.train_on and not moved:
+        ap.error(f"--train-on matches no validation motion ({', '.join(splits['validation'])})")
+    if len(moved) == len(splits["validation"]):
+        ap.error("--train-on leaves no validation motion to score (see --fit-validation)")
+    splits["train"] += moved
+    splits["validation"] = [n for n in splits["validation"] if n not in moved]
     clips = [_clip(project, name) for name in splits["train"]]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
@@ -161,7 +176,8 @@ def main() -> None:
     }
     out = {
         "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
-        "fit_validation": args.fit_validation, "ablations": ablations,
+        "fit_validation": args.fit_validation, "trained_on_validation": moved,
+        "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
     }  # fmt: skip
     if args.json:
@@ -173,6 +189,8 @@ def main() -> None:
     )
     if args.fit_validation:
         print("trained on the validation motions too: these are fits, not predictions")
+    if moved:
+        print(f"trained on validation motions {', '.join(moved)} too: scored on the others")
     if left_out:
         print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")
     for run in runs:

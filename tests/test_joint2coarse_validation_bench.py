@@ -49,5 +49,10 @@ def test_without_and_fit_validation(smoke_project):
     assert nothing.returncode == 2 and "matches no training motion" in nothing.stderr
     everything = _run(smoke_project, "--without", "*")
     assert everything.returncode == 2 and "leaves no training motion" in everything.stderr
+    unknown = _run(smoke_project, "--train-on", "no-such-clip")
+    assert unknown.returncode == 2 and "matches no validation motion" in unknown.stderr
+    (motion,) = left["splits"]["validation"]  # the smoke preset's one validation motion
+    moved = _run(smoke_project, "--train-on", motion)
+    assert moved.returncode == 2 and "leaves no validation motion to score" in moved.stderr
     short = _run(smoke_project, "--long-lags")  # the smoke preset's 34-frame window
     assert short.returncode == 2 and "--long-lags reads 32 samples back" in short.stderr

@@ -87,6 +87,10 @@ TURN_LAGS = (1, 2, 3, 4, 6, 8, 12, 16)
 #: Training of the residual network (``residual_widths``): AdamW (``residual_weight_decay``),
 #: this many frames per step, a one-cycle learning-rate schedule peaking at ``learning_rate``.
 RESIDUAL_BATCH = 128
+#: ``residual_loss="distance"``: each step's loss is the mean distance over this many of the
+#: proxy's vertices, drawn afresh (an unbiased estimate of the mean over all of them, at a
+#: fraction of the cost of projecting every frame's coefficients onto every vertex).
+DISTANCE_VERTICES = 128
 #: Joint index in the descriptor's 19 joints (the root is not in it: it is the origin).
 _DESC = {name: i for i, name in enumerate(JOINT2COARSE_JOINTS[1:])}
 _DYNAMIC = [_DESC[name] for name in DYNAMIC_JOINTS]
@@ -622,7 +626,8 @@ def fit_residual_network(
     ``residual_dropout``) onto the coefficients of the first ``residual_basis`` principal
     components of the training residuals, ``residual_steps`` AdamW steps (weight decay
     ``residual_weight_decay``; batch and schedule as the module constants say), Gaussian noise
-    of ``residual_input_noise`` on the inputs, the loss the residual's squared error in metres.
+    of ``residual_input_noise`` on the inputs, the loss the residual's squared error in metres
+    or, with ``residual_loss="distance"``, each vertex's distance to its target.
     Seeded by ``config.seed`` on its own random stream (the caller's is untouched).
 
     Parameters
@@ -648,6 +653,13 @@ def fit_residual_network(
     loss_weight = torch.from_numpy(k * scale**2 / (scale**2).sum()).float()
     inputs = torch.from_numpy(np.asarray(x, np.float32))
     targets = torch.from_numpy((c / scale).astype(np.float32))
+    if config.residual_loss == "distance":  # coefficients (in units of scale) -> metres
+        n_verts = y.shape[1] // 3
+        to_metres = torch.from_numpy((scale[:, None] * basis).astype(np.float32))
+        to_metres = to_metres.view(k, n_verts, 3)
+        offsets = torch.from_numpy(((y - mean) - c @ basis).astype(np.float32))  # outside it
+        offsets = offsets.view(len(y), n_verts, 3)
+        n_sampled = min(n_verts, DISTANCE_VERTICES)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         gen = torch.Generator().manual_seed(config.seed)
@@ -672,9 +684,22 @@ def fit_residual_network(
                 noise = torch.randn(xb.shape, generator=gen) * config.residual_input_noise
                 noise[:, -1] = 0.0
                 xb = xb + noise
-            loss = (((net(xb) - targets[i]) ** 2) * loss_weight).mean()
             opt.zero_grad()
-            loss.backward()
+            if config.residual_loss == "distance":  # over a random subset of the vertices
+                # The mean distance's gradient by hand: each vertex's unit error, back through
+                # the basis (autograd through the norm cost twice the network's own step).
+                out = net(xb)
+                v = torch.randperm(n_verts, generator=gen)[:n_sampled]
+                to_v = to_metres[:, v].reshape(k, -1)
+                with torch.no_grad():
+                    d = ((out - targets[i]) @ to_v).view(len(out), n_sampled, 3)
+                    d -= offsets[i[:, None], v]
+                    unit = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True).clamp_min(1e-12)
+                    grad = unit.view(len(out), -1) @ to_v.T / (len(out) * n_sampled)
+                out.backward(grad)
+            else:
+                loss = (((net(xb) - targets[i]) ** 2) * loss_weight).mean()
+                loss.backward()
             opt.step()
             sched.step()
     linear = [m for m in net if isinstance(m, torch.nn.Linear)]

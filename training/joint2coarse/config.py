@@ -15,6 +15,8 @@ MODELS = ("paper", "ours")
 RESIDUAL_FRAMES = ("hips", "skinned")
 #: The frames :attr:`Joint2CoarseConfig.feature_frame` names.
 FEATURE_FRAMES = ("heading", "hips", "hips+heading")
+#: The losses :attr:`Joint2CoarseConfig.residual_loss` names.
+RESIDUAL_LOSSES = ("squared", "distance")
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,19 @@ class Joint2CoarseConfig(PlainConfig):
     inputs in training (in units of each feature's spread; 0: none), a regulariser for motions
     whose features lie off the training set's. Measured as ``residual_weight_decay``: 0.1 29.4 /
     64, 0.3 32.9 / 72, against 27.9 / 62 without: it hurts."""
+    residual_loss: str = "squared"
+    """``ours``: what the residual network's training minimises: ``squared`` (the residual's
+    squared error, summed over coordinates) or ``distance`` (each vertex's distance to its
+    target, the error the figures report, averaged over vertices: each step over
+    :data:`~training.joint2coarse.body_model.DISTANCE_VERTICES` of them drawn at random). Where
+    the cloth may go one way or another for the same motion, the squared error is lowest at the
+    mean of the outcomes, which is nearer the body and shorter than any of them (the quick
+    project's predictions had their lowest third's edges at 0.86 of their length, the
+    simulation's at 1.00); the distance is lowest at their median. On the quick preset's
+    validation motions (its model, seeds 0 to 2, ``python benchmarks/joint2coarse_validation.py
+    P --seeds 0 1 2 --set residual_loss=distance``): 22.8 / 61 mm (mean / p95) against 23.4 /
+    62, at 128 vertices a step; at 256 22.9 / 61, over every vertex 22.8 / 61. The quick
+    preset sets it. Model files written before this field existed read as ``squared``."""
     residual_members: int = 1
     """``ours``: residual networks trained from seeds ``seed``, ``seed + 1``, ...; the residual
     is their mean (folded into one wider network: the hidden layers side by side, block
@@ -235,6 +250,11 @@ class Joint2CoarseConfig(PlainConfig):
             raise InputError(
                 f"joint2coarse config residual_frame={self.residual_frame!r}: choose from "
                 f"{', '.join(RESIDUAL_FRAMES)}"
+            )
+        if self.residual_loss not in RESIDUAL_LOSSES:
+            raise InputError(
+                f"joint2coarse config residual_loss={self.residual_loss!r}: choose from "
+                f"{', '.join(RESIDUAL_LOSSES)}"
             )
         if self.feature_frame not in FEATURE_FRAMES:
             raise InputError(
