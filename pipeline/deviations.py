@@ -213,7 +213,12 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
         add(
             "Joint2Coarse",
             "shape autoencoder + motion encoder",
-            "ours: the proxy skinned to the body plus a residual on the joints' history",
+            "ours: the proxy skinned to the body plus a residual on the joints' history"
+            + (
+                ", trained on each vertex's distance (not its squared error)"
+                if j.residual_loss == "distance"
+                else ""
+            ),
             "chosen on the validation clips",
         )
     else:

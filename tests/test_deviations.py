@@ -59,6 +59,12 @@ def test_rows_follow_the_settings():
     with pytest.raises(InputError, match="sim_solver='style3d'"):
         replace(quick, target_mode="simulate")
     assert layered not in {d.paper: d.here for d in deviations(thin)}[truth]
+    # ours' loss is named when it is the distance
+    ours_row = "shape autoencoder + motion encoder"
+    assert "each vertex's distance" in {d.paper: d.here for d in deviations(quick)}[ours_row]
+    squared = replace(quick, joint2coarse_overrides={**quick.joint2coarse_overrides})
+    squared.joint2coarse_overrides["residual_loss"] = "squared"
+    assert "distance" not in {d.paper: d.here for d in deviations(squared)}[ours_row]
     # the no-motion ablation's input (the coverage mask) is named where it runs
     no_motion = "without motion features: the neural texture's sample alone"
     assert no_motion not in {d.paper for d in deviations(quick)}

@@ -687,7 +687,7 @@ def fit_residual_network(
             opt.zero_grad()
             if config.residual_loss == "distance":  # over a random subset of the vertices
                 # The mean distance's gradient by hand: each vertex's unit error, back through
-                # the basis (autograd through the norm cost twice the network's own step).
+                # the basis (autograd through the gathers and the norm took longer).
                 out = net(xb)
                 v = torch.randperm(n_verts, generator=gen)[:n_sampled]
                 to_v = to_metres[:, v].reshape(k, -1)

@@ -79,9 +79,8 @@ class Joint2CoarseConfig(PlainConfig):
     target, the error the figures report, averaged over vertices: each step over
     :data:`~training.joint2coarse.body_model.DISTANCE_VERTICES` of them drawn at random). Where
     the cloth may go one way or another for the same motion, the squared error is lowest at the
-    mean of the outcomes, which is nearer the body and shorter than any of them (the quick
-    project's predictions had their lowest third's edges at 0.86 of their length, the
-    simulation's at 1.00); the distance is lowest at their median. On the quick preset's
+    mean of the outcomes, which lies inside all of them (a shorter, smoother skirt); the
+    distance is lowest at their median. On the quick preset's
     validation motions (its model, seeds 0 to 2, ``python benchmarks/joint2coarse_validation.py
     P --seeds 0 1 2 --set residual_loss=distance``): 22.8 / 61 mm (mean / p95) against 23.4 /
     62, at 128 vertices a step; at 256 22.9 / 61, over every vertex 22.8 / 61. The quick
