@@ -127,7 +127,7 @@ def main() -> None:
     moved = [n for n in splits["validation"] if any(fnmatch.fnmatch(n, p) for p in args.train_on)]
     if args.train_on and not moved:
         ap.error(f"--train-on matches no validation motion ({', '.join(splits['validation'])})")
-    if len(moved) == len(splits["validation"]):
+    if moved and len(moved) == len(splits["validation"]):
         ap.error("--train-on leaves no validation motion to score (see --fit-validation)")
     splits["train"] += moved
     splits["validation"] = [n for n in splits["validation"] if n not in moved]
