@@ -19,7 +19,8 @@ motions into training and scores the others: what training on validation motions
 worth to motions it has not seen. ``--no-turn-lags`` measures ours
 without the turning-rate features over longer lags, ``--every-joint-dynamic`` with every
 joint's velocities and accelerations instead of ``DYNAMIC_JOINTS``', ``--long-lags`` with
-every dynamic feature over twice the lags too (with ``--set window=66``) (ablations inside this
+every dynamic feature over twice the lags too (with ``--set window=66``), and
+``--distance-vertices N`` the distance loss over N vertices a step (ablations inside this
 process).
 """
 
@@ -93,7 +94,15 @@ def main() -> None:
         help="ablation: ours with velocities, accelerations and turning rates over twice the "
         "lags too (24 and 32 samples; give a window that holds them, e.g. --set window=66)",
     )  # fmt: skip
+    ap.add_argument(
+        "--distance-vertices", type=int, default=None, metavar="N",
+        help="with --set residual_loss=distance: vertices a step (body_model.DISTANCE_VERTICES)",
+    )  # fmt: skip
     args = ap.parse_args()
+    if args.distance_vertices is not None:  # as --no-turn-lags: this process only
+        if args.distance_vertices < 1:
+            ap.error(f"--distance-vertices {args.distance_vertices} must be at least 1")
+        body_model.DISTANCE_VERTICES = args.distance_vertices
     if args.long_lags:  # as --no-turn-lags: this process only
         body_model.VELOCITY_LAGS += (24,)
         body_model.ACCELERATION_LAGS += (12,)
@@ -106,6 +115,8 @@ def main() -> None:
     ablations = [
         f for f in ("every_joint_dynamic", "no_turn_lags", "long_lags") if getattr(args, f)
     ]
+    if args.distance_vertices is not None:
+        ablations.append(f"distance_vertices={args.distance_vertices}")
     torch.set_num_threads(1)
     project = Project(args.project)
     config = project_config(project)

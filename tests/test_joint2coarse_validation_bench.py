@@ -54,5 +54,7 @@ def test_without_and_fit_validation(smoke_project):
     (motion,) = left["splits"]["validation"]  # the smoke preset's one validation motion
     moved = _run(smoke_project, "--train-on", motion)
     assert moved.returncode == 2 and "leaves no validation motion to score" in moved.stderr
+    bad = _run(smoke_project, "--distance-vertices", "0")
+    assert bad.returncode == 2 and "--distance-vertices 0 must be at least 1" in bad.stderr
     short = _run(smoke_project, "--long-lags")  # the smoke preset's 34-frame window
     assert short.returncode == 2 and "--long-lags reads 32 samples back" in short.stderr

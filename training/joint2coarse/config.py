@@ -83,7 +83,8 @@ class Joint2CoarseConfig(PlainConfig):
     distance is lowest at their median. On the quick preset's
     validation motions (its model, seeds 0 to 2, ``python benchmarks/joint2coarse_validation.py
     P --seeds 0 1 2 --set residual_loss=distance``): 22.8 / 61 mm (mean / p95) against 23.4 /
-    62, at 128 vertices a step; at 256 22.9 / 61, over every vertex 22.8 / 61. The quick
+    62, at 128 vertices a step; at 256 22.9 / 61, over every vertex 22.8 / 61 (the same with
+    ``--distance-vertices 256`` and ``--distance-vertices 989``). The quick
     preset sets it. Model files written before this field existed read as ``squared``."""
     residual_members: int = 1
     """``ours``: residual networks trained from seeds ``seed``, ``seed + 1``, ...; the residual
