@@ -1,8 +1,8 @@
 """Joint2Coarse on a project's validation motions: the figures every choice is made on.
 
 Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
-[--seeds 0 1 2] [--without NAME ...] [--train-on NAME ...] [--fit-validation] [--json]
-[--test]``
+[--seeds 0 1 2] [--without NAME ...] [--train-on NAME ...] [--fit-validation]
+[--fit-test NAME ...] [--json] [--test]``
 
 Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
 joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
@@ -14,7 +14,8 @@ seeds, the mean over seeds, and the training time. ``--test`` adds the test moti
 them, never choose on them. ``--without`` leaves training motions out (names or shell patterns,
 e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-validation`` trains
 on the validation motions too: how closely the model fits motions it has seen, against what it
-does on motions it has not (never a choice: a diagnosis). ``--train-on`` moves some validation
+does on motions it has not (never a choice: a diagnosis); ``--fit-test NAME ...`` the same for
+test motions (it implies ``--test``). ``--train-on`` moves some validation
 motions into training and scores the others: what training on validation motions too would be
 worth to motions it has not seen. ``--no-turn-lags`` measures ours
 without the turning-rate features over longer lags, ``--every-joint-dynamic`` with every
@@ -71,6 +72,12 @@ def main() -> None:
     ap.add_argument(
         "--fit-validation", action="store_true",
         help="diagnosis: train on the validation motions too (how closely it fits what it saw)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--fit-test", nargs="+", default=[], metavar="NAME",
+        help="diagnosis: train on these test motions too (names or shell patterns; implies "
+        "--test): how closely the model fits a test motion once it has seen it, against what it "
+        "predicts for it unseen (never a choice)",
     )  # fmt: skip
     ap.add_argument(
         "--train-on", nargs="+", default=[], metavar="NAME",
@@ -142,7 +149,10 @@ def main() -> None:
         ap.error("--train-on leaves no validation motion to score (see --fit-validation)")
     splits["train"] += moved
     splits["validation"] = [n for n in splits["validation"] if n not in moved]
-    clips = [_clip(project, name) for name in splits["train"]]
+    fitted = [n for n in splits["test"] if any(fnmatch.fnmatch(n, p) for p in args.fit_test)]
+    if args.fit_test and not fitted:
+        ap.error(f"--fit-test matches no test motion ({', '.join(splits['test'])})")
+    clips = [_clip(project, name) for name in splits["train"] + fitted]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
     rig = None
@@ -152,7 +162,7 @@ def main() -> None:
     # as the project's stage trains (a garment that is not symmetric: no mirrors, said)
     cfg, mirror, _ = mirror_setting(cfg, proxy_file, lambda line: print(line, file=sys.stderr))
     scored = {"validation": splits["validation"]}
-    if args.test:
+    if args.test or fitted:
         scored["test"] = splits["test"]
     refs = {
         n: (_clip(project, n), load_cache(project.path(f"sim/{n}-proxy", "cache.npz")).positions)
@@ -188,6 +198,7 @@ def main() -> None:
     out = {
         "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
         "fit_validation": args.fit_validation, "trained_on_validation": moved,
+        "trained_on_test": fitted,
         "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
     }  # fmt: skip
@@ -202,6 +213,8 @@ def main() -> None:
         print("trained on the validation motions too: these are fits, not predictions")
     if moved:
         print(f"trained on validation motions {', '.join(moved)} too: scored on the others")
+    if fitted:
+        print(f"trained on test motions {', '.join(fitted)} too: their figures are fits")
     if left_out:
         print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")
     for run in runs:

@@ -1,6 +1,6 @@
 """``benchmarks/joint2coarse_validation.py``: the figures Joint2Coarse's choices are made on,
-with training clips left out (``--without``), fitted on validation (``--fit-validation``) and
-mirrored (``--set mirror=true``)."""
+with training clips left out (``--without``), fitted on validation (``--fit-validation``) or
+on a test motion (``--fit-test``) and mirrored (``--set mirror=true``)."""
 
 from __future__ import annotations
 
@@ -54,6 +54,20 @@ def test_without_and_fit_validation(smoke_project):
     (motion,) = left["splits"]["validation"]  # the smoke preset's one validation motion
     moved = _run(smoke_project, "--train-on", motion)
     assert moved.returncode == 2 and "leaves no validation motion to score" in moved.stderr
+    # a test motion trained on too (a diagnosis): scored with the test split, named as a fit
+    (test_motion, *_) = [
+        m for m in ("cmu-01_01", "twirl") if (smoke_project / "sim" / f"{m}-proxy").is_dir()
+    ]
+    out = _run(smoke_project, *steps, "--fit-test", test_motion, "--json")
+    assert out.returncode == 0, out.stderr
+    fit_test = json.loads(out.stdout)
+    assert (
+        fit_test["trained_on_test"] == [test_motion] and test_motion in fit_test["splits"]["test"]
+    )
+    assert fit_test["runs"][0]["test"]["motions"][test_motion]["mean_mm"] > 0
+    assert "trained_on_test" in left and left["trained_on_test"] == []
+    no_test = _run(smoke_project, "--fit-test", "no-such-clip")
+    assert no_test.returncode == 2 and "matches no test motion" in no_test.stderr
     bad = _run(smoke_project, "--distance-vertices", "0")
     assert bad.returncode == 2 and "--distance-vertices 0 must be at least 1" in bad.stderr
     short = _run(smoke_project, "--long-lags")  # the smoke preset's 34-frame window
