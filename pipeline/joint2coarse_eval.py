@@ -9,7 +9,11 @@ that decides it), Joint2Coarse predicts the same frames, and the two are compare
 collides with, and milliseconds per frame of both. With ``floor``, the proxy is simulated again
 moved 10 um at random (:data:`core.sim.sanity.FLOOR_PERTURBATION_M`): where the cloth buckles
 its folds go one way or the other, so the simulation is only this close to itself, and no
-prediction can be expected to come much closer (README "Simulation quality").
+prediction can be expected to come much closer (README "Simulation quality"). With
+``realisations`` N, the proxy is simulated N more times, each moved 10 um by offsets of its own
+(the first is the floor's), and every model is scored against each of the N + 1 simulations:
+a figure measured against one simulation is one draw of where the folds went, and on a motion
+where they can go more than one way it moves by millimetres from one draw to the next.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import json
 import os
 import time
 from dataclasses import asdict
+from itertools import combinations
 from pathlib import Path
 
 import numpy as np
@@ -115,11 +120,12 @@ def simulate_cached(
     log: Log = quiet,
     cache_root: Path | None = None,
     moved_m: float = 0.0,
+    moved_seed: int = 0,
 ):
     """The proxy simulated under ``motion`` with the project's settings, from the scratch cache
     (``cache_root``, default :func:`scratch_dir`) when it holds this exact simulation;
-    ``moved_m`` > 0: the proxy's rest vertices moved first by a seeded normal offset of that
-    standard deviation (metres; :func:`core.sim.sanity.perturbed`).
+    ``moved_m`` > 0: the proxy's rest vertices moved first by a normal offset of that standard
+    deviation (metres; :func:`core.sim.sanity.perturbed`), drawn from ``moved_seed``.
 
     Returns
     -------
@@ -134,7 +140,7 @@ def simulate_cached(
     sim_cfg = sim_config(config)
     thickness = proxy_thickness(project, mesh) if config.layer_thickness else None
     if moved_m > 0:
-        mesh = perturbed(mesh, moved_m, 0)
+        mesh = perturbed(mesh, moved_m, moved_seed)
     params = {
         "sim": sim_cfg.as_dict(),
         "body": asdict(config.body),
@@ -168,14 +174,18 @@ def evaluate_on_motion(
     log: Log = quiet,
     cache_root: Path | None = None,
     floor: bool = False,
+    realisations: int = 0,
 ) -> dict:
     """Joint2Coarse against the simulation on one motion (already on the mannequin); with
-    ``floor``, the simulation against itself on the proxy moved 10 um too (``simulation_floor_mm``).
+    ``floor``, the simulation against itself on the proxy moved 10 um too (``simulation_floor_mm``);
+    with ``realisations`` N > 0, against N more simulations too, each of the proxy moved 10 um
+    by offsets of its own (``realisations``: :func:`realisation_errors`).
 
     Raises
     ------
     InputError
-        No trained Joint2Coarse in the project; a motion shorter than its descriptor window.
+        No trained Joint2Coarse in the project; a motion shorter than its descriptor window;
+        ``realisations`` below 0.
     """
     import torch
 
@@ -194,6 +204,8 @@ def evaluate_on_motion(
         raise InputError(
             "the project has no trained Joint2Coarse: run dng train joint2coarse first", model_file
         )
+    if not (isinstance(realisations, int) and realisations >= 0):
+        raise InputError(f"realisations must be an integer >= 0, got {realisations!r}", source)
     net = load_model(model_file)
     window = net.config.window
     if motion.num_frames < window:
@@ -221,16 +233,27 @@ def evaluate_on_motion(
     pushed = predict_proxy(net, joints, root_rot, capsules=ends, radii=radii, source=source)
     push_ms = 1e3 * (time.perf_counter() - start) / len(pred) - batch_ms
     compare = {}  # the models trained beside the project's (joint2coarse_compare)
+    predictions = {net.config.model: pred}
     for path in sorted(project.stage_dir("joint2coarse").glob("compare-*/joint2coarse.pt")):
         other = load_model(path)
         if motion.num_frames >= other.config.window:
             pred_other = predict_proxy(other, joints, root_rot, source=source)
             compare[other.config.model] = asdict(vertex_errors(pred_other, reference.positions))
+            predictions.setdefault(other.config.model, pred_other)
     floor_mm = floor_seconds = None
     if floor:
         moved = simulate_cached(project, config, motion, log, cache_root, FLOOR_PERTURBATION_M)[0]
         floor_mm = asdict(vertex_errors(moved.positions, reference.positions))
         floor_seconds = errors_per_second(moved.positions, reference.positions, motion.fps)
+    realised = None
+    if realisations:
+        sims = [reference.positions] + [
+            simulate_cached(
+                project, config, motion, log, cache_root, FLOOR_PERTURBATION_M, moved_seed=i
+            )[0].positions
+            for i in range(realisations)
+        ]
+        realised = realisation_errors(predictions, sims)
     return {
         "project": str(project.root),
         "model": net.config.model,
@@ -255,8 +278,46 @@ def evaluate_on_motion(
         "compare_error_mm": compare,
         "simulation_floor_mm": floor_mm,
         "simulation_floor_mm_per_second": floor_seconds,
+        "realisations": realised,
         "simulation_cache": str(folder),
         "simulation_from_cache": cached,
+    }
+
+
+def realisation_errors(predictions: dict, simulations: list) -> dict:
+    """Every model against every simulation of the same motion, and the simulations against
+    each other: how much a figure measured against one of them is a draw.
+
+    Parameters
+    ----------
+    predictions : {model name: (T, V, 3) prediction}, metres
+    simulations : list of S (T, V, 3) simulations of the motion, metres (the first the
+        reference, the rest of the proxy moved 10 um)
+
+    Returns
+    -------
+    dict: ``simulations`` S; ``error_mm`` {model: ``mean_mm``, ``p95_mm`` (means over the S),
+    ``mean_mm_each`` (S,)}; ``between_simulations_mm``: ``mean_mm``, ``p95_mm`` (means over the
+    S (S - 1) / 2 pairs), ``mean_mm_each``.
+    """
+    from training.joint2coarse import vertex_errors
+
+    def summary(errors: list) -> dict:
+        return {
+            "mean_mm": float(np.mean([e.mean_mm for e in errors])),
+            "p95_mm": float(np.mean([e.p95_mm for e in errors])),
+            "mean_mm_each": [float(e.mean_mm) for e in errors],
+        }
+
+    return {
+        "simulations": len(simulations),
+        "error_mm": {
+            model: summary([vertex_errors(pred, sim) for sim in simulations])
+            for model, pred in predictions.items()
+        },
+        "between_simulations_mm": summary(
+            [vertex_errors(a, b) for a, b in combinations(simulations, 2)]
+        ),
     }
 
 
@@ -322,6 +383,19 @@ def format_report(report: dict) -> str:
             f"{'simulation, proxy moved 10 um':28s} {f['mean_mm']:8.1f} {f['p95_mm']:8.1f} "
             f"{f['max_mm']:8.1f}   (the floor: how far the simulation is from itself)"
         )
+    realised = report.get("realisations")
+    if realised:
+        lines.append(
+            f"against {realised['simulations']} simulations (the proxy moved 10 um in all but "
+            "the first), mean / p95 mm over them, the range of the means:"
+        )
+        rows = [(f"Joint2Coarse ({m})", e) for m, e in realised["error_mm"].items()]
+        rows.append(("the simulations, each pair", realised["between_simulations_mm"]))
+        for name, e in rows:
+            lines.append(
+                f"  {name:26s} {e['mean_mm']:8.1f} {e['p95_mm']:8.1f}   "
+                f"({min(e['mean_mm_each']):.1f} to {max(e['mean_mm_each']):.1f})"
+            )
     seconds = report["error_mm_per_second"]
     if len(seconds) > 1:
         worst = max(seconds, key=lambda w: w["mean_mm"])

@@ -96,6 +96,26 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     assert max(w["max_mm"] for w in floor_seconds) == f["max_mm"]
     code, out, _ = dng(*args, "--floor")
     assert code == 0 and "simulation, proxy moved 10 um" in out and "floor each second" in out
+    assert floored["realisations"] is None and "simulations (the proxy moved" not in out
+    # --realisations 2: two simulations of the proxy moved 10 um (the first is the floor's,
+    # from the cache), every model scored against all three.
+    code, out, err = dng(*args, "--realisations", 2, "--json")
+    assert code == 0, err
+    r = json.loads(out)["realisations"]
+    assert r["simulations"] == 3 and len([p for p in scratch.rglob("cache.npz")]) == 3
+    assert set(r["error_mm"]) == {"paper", "ours"}
+    for model, e in r["error_mm"].items():
+        each = e["mean_mm_each"]
+        assert len(each) == 3 and abs(e["mean_mm"] - np.mean(each)) < 1e-9
+        first = report["error_mm"] if model == "paper" else report["compare_error_mm"]["ours"]
+        assert abs(each[0] - first["mean_mm"]) < 1e-9  # the first is the reference
+    between = r["between_simulations_mm"]["mean_mm_each"]  # pairs (0, 1), (0, 2), (1, 2)
+    assert len(between) == 3 and abs(between[0] - f["mean_mm"]) < 1e-9
+    assert len(set(between)) == 3  # each moved simulation has offsets of its own
+    code, out, _ = dng(*args, "--realisations", 2)
+    assert code == 0 and "against 3 simulations" in out and "each pair" in out
+    code, _, err = dng(*args, "--realisations", 0)
+    assert code == 2 and "--realisations must be at least 1" in err
 
 
 def test_eval_joint2coarse_on_capture(smoke_project, scratch, dng, bvh_dir):

@@ -63,6 +63,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also simulate the proxy moved 10 um at random: how far the simulation is from "
         "itself, which no prediction can be expected to beat (cached too)",
     )  # fmt: skip
+    j.add_argument(
+        "--realisations", type=int, default=None, metavar="N",
+        help="also simulate the proxy N more times, each moved 10 um at random by offsets of "
+        "its own (the first is --floor's), and score every model against each of the N + 1: "
+        "how much a figure against one simulation is a draw (cached too)",
+    )  # fmt: skip
     p.add_argument(
         "--inception",
         metavar="WEIGHTS.pth",
@@ -100,7 +106,12 @@ def run_joint2coarse(args: argparse.Namespace) -> int:
     config = project_config(project)
     log = (lambda message: print(message, file=sys.stderr, flush=True)) if args.json else print
     motion = eval_motion(config, args.motion, args.frames, args.start_s, args.seed)
-    report = evaluate_on_motion(project, config, motion, args.motion, log, floor=args.floor)
+    if args.realisations is not None and args.realisations < 1:
+        raise InputError(f"--realisations must be at least 1, got {args.realisations}")
+    report = evaluate_on_motion(
+        project, config, motion, args.motion, log, floor=args.floor,
+        realisations=args.realisations or 0,
+    )  # fmt: skip
     print(json.dumps(report, indent=1) if args.json else format_report(report))
     return 0
 
