@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
 [--seeds 0 1 2] [--without NAME ...] [--train-on NAME ...] [--fit-validation]
-[--fit-test NAME ...] [--json] [--test]``
+[--fit-test NAME ...] [--realisations N] [--json] [--test]``
 
 Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
 joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
@@ -12,7 +12,11 @@ project. Prints the mean / p95 / max vertex error (mm) against the simulation of
 validation motion (``joint2coarse_validation``), their mean over the motions and, with several
 seeds, the mean over seeds, and the training time. ``--test`` adds the test motions: report
 them, never choose on them. ``--without`` leaves training motions out (names or shell patterns,
-e.g. ``--without '*-spin'``): what each part of the library is worth. ``--fit-validation`` trains
+e.g. ``--without '*-spin'``): what each part of the library is worth. ``--realisations N``
+trains on N more simulations of every training clip too, each of the proxy moved 10 um
+(cached outside the project, as ``dng eval joint2coarse --realisations`` caches them): where
+the folds of a motion can go more than one way, more of its outcomes to learn the likely one
+from. ``--fit-validation`` trains
 on the validation motions too: how closely the model fits motions it has seen, against what it
 does on motions it has not (never a choice: a diagnosis); ``--fit-test NAME ...`` the same for
 test motions (it implies ``--test``). ``--train-on`` moves some validation
@@ -34,6 +38,7 @@ import sys
 import tempfile
 import time
 from dataclasses import asdict, replace
+from functools import partial
 
 import numpy as np
 import torch
@@ -42,7 +47,9 @@ from app.commands import parse_setting
 from core.mesh import load_mesh
 from core.project import Project
 from core.sim import load_cache
+from core.sim.sanity import FLOOR_PERTURBATION_M
 from pipeline.config import joint2coarse_config, joint2coarse_splits, project_config
+from pipeline.joint2coarse_eval import simulate_cached
 from pipeline.stages.joint2coarse import mirror_setting
 from pipeline.stages.motions import load_project_motion
 from training.joint2coarse import (
@@ -62,6 +69,16 @@ def _clip(project: Project, name: str) -> Joint2CoarseClip:
     return Joint2CoarseClip(joints, root_rot, positions, name=name)
 
 
+def _realisation(project: Project, config, name: str, seed: int) -> Joint2CoarseClip:
+    """Training clip ``name`` on another simulation of its motion: the proxy moved 10 um by the
+    offsets of ``seed`` (cached in the scratch folder, as ``dng eval joint2coarse`` caches)."""
+    motion = load_project_motion(project, name)
+    log = partial(print, file=sys.stderr, flush=True)
+    sim = simulate_cached(project, config, motion, log, None, FLOOR_PERTURBATION_M, seed)[0]
+    joints, root_rot = joint2coarse_inputs(motion)
+    return Joint2CoarseClip(joints, root_rot, sim.positions, name=f"{name}-moved-{seed}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("project")
@@ -78,6 +95,12 @@ def main() -> None:
         help="diagnosis: train on these test motions too (names or shell patterns; implies "
         "--test): how closely the model fits a test motion once it has seen it, against what it "
         "predicts for it unseen (never a choice)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--realisations", type=int, default=0, metavar="N",
+        help="train on N more simulations of every training clip too, each of the proxy moved "
+        "10 um by offsets of its own (simulated once, cached as dng eval joint2coarse caches): "
+        "what more outcomes of the same motions are worth",
     )  # fmt: skip
     ap.add_argument(
         "--train-on", nargs="+", default=[], metavar="NAME",
@@ -152,7 +175,14 @@ def main() -> None:
     fitted = [n for n in splits["test"] if any(fnmatch.fnmatch(n, p) for p in args.fit_test)]
     if args.fit_test and not fitted:
         ap.error(f"--fit-test matches no test motion ({', '.join(splits['test'])})")
+    if args.realisations < 0:
+        ap.error(f"--realisations {args.realisations} must be at least 0")
     clips = [_clip(project, name) for name in splits["train"] + fitted]
+    clips += [
+        _realisation(project, config, name, seed)
+        for seed in range(args.realisations)
+        for name in splits["train"]
+    ]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
     rig = None
@@ -198,7 +228,7 @@ def main() -> None:
     out = {
         "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
         "fit_validation": args.fit_validation, "trained_on_validation": moved,
-        "trained_on_test": fitted,
+        "trained_on_test": fitted, "realisations": args.realisations,
         "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
     }  # fmt: skip
@@ -215,6 +245,8 @@ def main() -> None:
         print(f"trained on validation motions {', '.join(moved)} too: scored on the others")
     if fitted:
         print(f"trained on test motions {', '.join(fitted)} too: their figures are fits")
+    if args.realisations:
+        print(f"trained on {args.realisations} more simulation(s) of every training clip too")
     if left_out:
         print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")
     for run in runs:

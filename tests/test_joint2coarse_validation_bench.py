@@ -18,6 +18,32 @@ def _run(project: Path, *args: str) -> subprocess.CompletedProcess:
     )
 
 
+def test_realisations(smoke_project, tmp_path, monkeypatch):
+    """--realisations 1: every training clip trains on a second simulation of its motion too (the
+    proxy moved 10 um), simulated into the scratch cache, not into the project."""
+    cache = tmp_path / "xdg-cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    steps = [
+        "--set",
+        "autoencoder_steps=20",
+        "--set",
+        "motion_steps=20",
+        "--set",
+        "finetune_steps=5",
+    ]
+    in_project = sorted(smoke_project.rglob("cache.npz"))
+    out = _run(smoke_project, *steps, "--realisations", "1", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert result["realisations"] == 1
+    (motion,) = result["splits"]["validation"]
+    assert result["runs"][0]["validation"]["motions"][motion]["mean_mm"] > 0
+    assert len(list(cache.rglob("cache.npz"))) == len(result["train"])  # one more of each
+    assert sorted(smoke_project.rglob("cache.npz")) == in_project
+    bad = _run(smoke_project, "--realisations", "-1")
+    assert bad.returncode == 2 and "--realisations -1 must be at least 0" in bad.stderr
+
+
 def test_without_and_fit_validation(smoke_project):
     steps = [
         "--set",
