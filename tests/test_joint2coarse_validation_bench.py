@@ -10,6 +10,10 @@ import sys
 from pathlib import Path
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "joint2coarse_validation.py"
+#: The paper model's stages cut short: these tests check the bench, not the model.
+SHORT_STEPS = (
+    "--set", "autoencoder_steps=20", "--set", "motion_steps=20", "--set", "finetune_steps=5",
+)  # fmt: skip
 
 
 def _run(project: Path, *args: str) -> subprocess.CompletedProcess:
@@ -23,16 +27,8 @@ def test_realisations(smoke_project, tmp_path, monkeypatch):
     proxy moved 10 um), simulated into the scratch cache, not into the project."""
     cache = tmp_path / "xdg-cache"
     monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
-    steps = [
-        "--set",
-        "autoencoder_steps=20",
-        "--set",
-        "motion_steps=20",
-        "--set",
-        "finetune_steps=5",
-    ]
     in_project = sorted(smoke_project.rglob("cache.npz"))
-    out = _run(smoke_project, *steps, "--realisations", "1", "--json")
+    out = _run(smoke_project, *SHORT_STEPS, "--realisations", "1", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     assert result["realisations"] == 1
@@ -45,20 +41,12 @@ def test_realisations(smoke_project, tmp_path, monkeypatch):
 
 
 def test_without_and_fit_validation(smoke_project):
-    steps = [
-        "--set",
-        "autoencoder_steps=20",
-        "--set",
-        "motion_steps=20",
-        "--set",
-        "finetune_steps=5",
-    ]
-    out = _run(smoke_project, *steps, "--without", "circle-*", "--json")
+    out = _run(smoke_project, *SHORT_STEPS, "--without", "circle-*", "--json")
     assert out.returncode == 0, out.stderr
     left = json.loads(out.stdout)
     assert left["left_out"] == ["circle-walk"] and left["train"] == ["dance"]
     assert not left["fit_validation"]
-    out = _run(smoke_project, *steps, "--fit-validation", "--json")
+    out = _run(smoke_project, *SHORT_STEPS, "--fit-validation", "--json")
     assert out.returncode == 0, out.stderr
     fitted = json.loads(out.stdout)
     assert fitted["fit_validation"] and fitted["left_out"] == []
@@ -66,7 +54,7 @@ def test_without_and_fit_validation(smoke_project):
         (motion,) = result["splits"]["validation"]
         assert result["runs"][0]["validation"]["motions"][motion]["mean_mm"] > 0
     # mirrored training clips: the smoke project's proxy is symmetric enough for its map
-    out = _run(smoke_project, *steps, "--set", "mirror=true", "--json")
+    out = _run(smoke_project, *SHORT_STEPS, "--set", "mirror=true", "--json")
     assert out.returncode == 0, out.stderr
     mirrored = json.loads(out.stdout)
     assert mirrored["config"]["mirror"] is True
@@ -84,7 +72,7 @@ def test_without_and_fit_validation(smoke_project):
     (test_motion, *_) = [
         m for m in ("cmu-01_01", "twirl") if (smoke_project / "sim" / f"{m}-proxy").is_dir()
     ]
-    out = _run(smoke_project, *steps, "--fit-test", test_motion, "--json")
+    out = _run(smoke_project, *SHORT_STEPS, "--fit-test", test_motion, "--json")
     assert out.returncode == 0, out.stderr
     fit_test = json.loads(out.stdout)
     assert (
