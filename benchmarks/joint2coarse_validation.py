@@ -178,11 +178,15 @@ def main() -> None:
     if args.realisations < 0:
         ap.error(f"--realisations {args.realisations} must be at least 0")
     clips = [_clip(project, name) for name in splits["train"] + fitted]
-    clips += [
-        _realisation(project, config, name, seed)
+    firsts = {c.name: c.proxy for c in clips}
+    again = [
+        (name, _realisation(project, config, name, seed))
         for seed in range(args.realisations)
         for name in splits["train"]
     ]
+    clips += [clip for _, clip in again]
+    # how far each clip's second outcome is from its first: what one simulation leaves open
+    apart = [vertex_errors(clip.proxy, firsts[name]).mean_mm for name, clip in again]
     if args.fit_validation:
         clips += [_clip(project, name) for name in splits["validation"]]
     rig = None
@@ -229,6 +233,7 @@ def main() -> None:
         "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
         "fit_validation": args.fit_validation, "trained_on_validation": moved,
         "trained_on_test": fitted, "realisations": args.realisations,
+        "realisations_from_first_mm": float(np.mean(apart)) if apart else None,
         "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
     }  # fmt: skip
@@ -246,7 +251,10 @@ def main() -> None:
     if fitted:
         print(f"trained on test motions {', '.join(fitted)} too: their figures are fits")
     if args.realisations:
-        print(f"trained on {args.realisations} more simulation(s) of every training clip too")
+        print(
+            f"trained on {args.realisations} more simulation(s) of every training clip too, "
+            f"{np.mean(apart):.1f} mm mean from the clips' own"
+        )
     if left_out:
         print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")
     for run in runs:

@@ -240,20 +240,20 @@ def evaluate_on_motion(
             pred_other = predict_proxy(other, joints, root_rot, source=source)
             compare[other.config.model] = asdict(vertex_errors(pred_other, reference.positions))
             predictions.setdefault(other.config.model, pred_other)
+    # the proxy moved 10 um, offsets of seeds 0, 1, ...: the floor is the first of them
+    moved = [
+        simulate_cached(
+            project, config, motion, log, cache_root, FLOOR_PERTURBATION_M, moved_seed=i
+        )[0].positions
+        for i in range(max(realisations, int(floor)))
+    ]
     floor_mm = floor_seconds = None
     if floor:
-        moved = simulate_cached(project, config, motion, log, cache_root, FLOOR_PERTURBATION_M)[0]
-        floor_mm = asdict(vertex_errors(moved.positions, reference.positions))
-        floor_seconds = errors_per_second(moved.positions, reference.positions, motion.fps)
+        floor_mm = asdict(vertex_errors(moved[0], reference.positions))
+        floor_seconds = errors_per_second(moved[0], reference.positions, motion.fps)
     realised = None
     if realisations:
-        sims = [reference.positions] + [
-            simulate_cached(
-                project, config, motion, log, cache_root, FLOOR_PERTURBATION_M, moved_seed=i
-            )[0].positions
-            for i in range(realisations)
-        ]
-        realised = realisation_errors(predictions, sims)
+        realised = realisation_errors(predictions, [reference.positions, *moved])
     return {
         "project": str(project.root),
         "model": net.config.model,

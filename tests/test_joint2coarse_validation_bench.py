@@ -31,7 +31,7 @@ def test_realisations(smoke_project, tmp_path, monkeypatch):
     out = _run(smoke_project, *SHORT_STEPS, "--realisations", "1", "--json")
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
-    assert result["realisations"] == 1
+    assert result["realisations"] == 1 and result["realisations_from_first_mm"] > 0
     (motion,) = result["splits"]["validation"]
     assert result["runs"][0]["validation"]["motions"][motion]["mean_mm"] > 0
     assert len(list(cache.rglob("cache.npz"))) == len(result["train"])  # one more of each
