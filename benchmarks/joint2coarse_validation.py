@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
 [--seeds 0 1 2] [--without NAME ...] [--train-on NAME ...] [--fit-validation]
-[--fit-test NAME ...] [--realisations N] [--json] [--test]``
+[--fit-test NAME ...] [--realisations N [--realisations-of NAME ...]] [--json] [--test]``
 
 Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
 joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
@@ -16,7 +16,8 @@ e.g. ``--without '*-spin'``): what each part of the library is worth. ``--realis
 trains on N more simulations of every training clip too, each of the proxy moved 10 um
 (cached outside the project, as ``dng eval joint2coarse --realisations`` caches them): where
 the folds of a motion can go more than one way, more of its outcomes to learn the likely one
-from. ``--fit-validation`` trains
+from; ``--realisations-of NAME ...`` gives them to those training clips only (names or shell
+patterns): which clips' further outcomes pay for their simulation. ``--fit-validation`` trains
 on the validation motions too: how closely the model fits motions it has seen, against what it
 does on motions it has not (never a choice: a diagnosis); ``--fit-test NAME ...`` the same for
 test motions (it implies ``--test``). ``--train-on`` moves some validation
@@ -103,6 +104,10 @@ def main() -> None:
         "what more outcomes of the same motions are worth",
     )  # fmt: skip
     ap.add_argument(
+        "--realisations-of", nargs="+", default=[], metavar="NAME",
+        help="with --realisations: only these training clips' (names or shell patterns)",
+    )  # fmt: skip
+    ap.add_argument(
         "--train-on", nargs="+", default=[], metavar="NAME",
         help="validation motions to train on too (names or shell patterns), scored no more: "
         "what training on part of the validation split is worth to the rest of it",
@@ -177,12 +182,21 @@ def main() -> None:
         ap.error(f"--fit-test matches no test motion ({', '.join(splits['test'])})")
     if args.realisations < 0:
         ap.error(f"--realisations {args.realisations} must be at least 0")
+    again_of = splits["train"]
+    if args.realisations_of:
+        if not args.realisations:
+            ap.error("--realisations-of needs --realisations N (N at least 1)")
+        again_of = [
+            n for n in splits["train"] if any(fnmatch.fnmatch(n, p) for p in args.realisations_of)
+        ]
+        if not again_of:
+            ap.error(f"--realisations-of matches no training motion ({', '.join(splits['train'])})")
     clips = [_clip(project, name) for name in splits["train"] + fitted]
     firsts = {c.name: c.proxy for c in clips}
     again = [
         (name, _realisation(project, config, name, seed))
         for seed in range(args.realisations)
-        for name in splits["train"]
+        for name in again_of
     ]
     clips += [clip for _, clip in again]
     # how far each clip's second outcome is from its first: what one simulation leaves open
@@ -233,6 +247,7 @@ def main() -> None:
         "config": cfg.to_dict(), "splits": scored, "train": splits["train"], "left_out": left_out,
         "fit_validation": args.fit_validation, "trained_on_validation": moved,
         "trained_on_test": fitted, "realisations": args.realisations,
+        "realisations_of": again_of if args.realisations else [],
         "realisations_from_first_mm": float(np.mean(apart)) if apart else None,
         "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
@@ -252,8 +267,13 @@ def main() -> None:
         print(f"trained on test motions {', '.join(fitted)} too: their figures are fits")
     if args.realisations:
         print(
-            f"trained on {args.realisations} more simulation(s) of every training clip too, "
-            f"{np.mean(apart):.1f} mm mean from the clips' own"
+            f"trained on {args.realisations} more simulation(s) of "
+            + (
+                "every training clip"
+                if len(again_of) == len(splits["train"])
+                else f"{len(again_of)} training clips ({', '.join(again_of)})"
+            )
+            + f" too, {np.mean(apart):.1f} mm mean from the clips' own"
         )
     if left_out:
         print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")

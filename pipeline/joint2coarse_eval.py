@@ -13,7 +13,9 @@ prediction can be expected to come much closer (README "Simulation quality"). Wi
 ``realisations`` N, the proxy is simulated N more times, each moved 10 um by offsets of its own
 (the first is the floor's), and every model is scored against each of the N + 1 simulations:
 a figure measured against one simulation is one draw of where the folds went, and on a motion
-where they can go more than one way it moves by millimetres from one draw to the next.
+where they can go more than one way it moves by millimetres from one draw to the next. From
+N = 2 on, the mean of the other simulations is scored against each too: the motion's likely
+outcome, about the best any prediction can do (:func:`realisation_errors`).
 """
 
 from __future__ import annotations
@@ -298,7 +300,15 @@ def realisation_errors(predictions: dict, simulations: list) -> dict:
     -------
     dict: ``simulations`` S; ``error_mm`` {model: ``mean_mm``, ``p95_mm`` (means over the S),
     ``mean_mm_each`` (S,)}; ``between_simulations_mm``: ``mean_mm``, ``p95_mm`` (means over the
-    S (S - 1) / 2 pairs), ``mean_mm_each``.
+    S (S - 1) / 2 pairs), ``mean_mm_each``; ``mean_of_others_mm`` (S >= 3, else None): the mean
+    of the other S - 1 simulations, vertex by vertex, against each one, the same three keys.
+
+    The mean of the others is a prediction no model can beat by much: the likely outcome of the
+    motion, estimated from S - 1 draws, scored against a draw it has not seen. A model at that
+    figure has learned all of the motion that the cloth repeats; what is left is where the
+    folds went this time. (From S - 1 draws the estimate carries a little of their own scatter:
+    with errors independent from vertex to vertex, its mean squared error is ``1 + 1 / (S - 1)``
+    times the true likely outcome's.)
     """
     from training.joint2coarse import vertex_errors
 
@@ -318,6 +328,16 @@ def realisation_errors(predictions: dict, simulations: list) -> dict:
         "between_simulations_mm": summary(
             [vertex_errors(a, b) for a, b in combinations(simulations, 2)]
         ),
+        "mean_of_others_mm": summary(
+            [
+                vertex_errors(
+                    np.mean([o for j, o in enumerate(simulations) if j != i], axis=0), sim
+                )
+                for i, sim in enumerate(simulations)
+            ]
+        )
+        if len(simulations) >= 3
+        else None,
     }
 
 
@@ -391,6 +411,8 @@ def format_report(report: dict) -> str:
         )
         rows = [(f"Joint2Coarse ({m})", e) for m, e in realised["error_mm"].items()]
         rows.append(("the simulations, each pair", realised["between_simulations_mm"]))
+        if realised.get("mean_of_others_mm"):
+            rows.append(("the mean of the others", realised["mean_of_others_mm"]))
         for name, e in rows:
             lines.append(
                 f"  {name:26s} {e['mean_mm']:8.1f} {e['p95_mm']:8.1f}   "

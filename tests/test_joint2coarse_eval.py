@@ -112,8 +112,14 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     between = r["between_simulations_mm"]["mean_mm_each"]  # pairs (0, 1), (0, 2), (1, 2)
     assert len(between) == 3 and abs(between[0] - f["mean_mm"]) < 1e-9
     assert len(set(between)) == 3  # each moved simulation has offsets of its own
+    # the mean of the other two against each: the midpoint of two draws lies nearer a third
+    # than the average pair does (by the triangle inequality, vertex by vertex: never farther)
+    others = r["mean_of_others_mm"]
+    assert len(others["mean_mm_each"]) == 3 and others["mean_mm"] > 0
+    assert others["mean_mm"] <= np.mean(between) + 1e-9
     code, out, _ = dng(*args, "--realisations", 2)
     assert code == 0 and "against 3 simulations" in out and "each pair" in out
+    assert "the mean of the others" in out
     code, _, err = dng(*args, "--realisations", 0)
     assert code == 2 and "--realisations must be at least 1" in err
 

@@ -38,6 +38,21 @@ def test_realisations(smoke_project, tmp_path, monkeypatch):
     assert sorted(smoke_project.rglob("cache.npz")) == in_project
     bad = _run(smoke_project, "--realisations", "-1")
     assert bad.returncode == 2 and "--realisations -1 must be at least 0" in bad.stderr
+    # --realisations-of: the further outcomes of some training clips only (from the cache)
+    out = _run(
+        smoke_project, *SHORT_STEPS, "--realisations", "1", "--realisations-of", "circle-*",
+        "--json",
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    some = json.loads(out.stdout)
+    assert some["realisations_of"] == ["circle-walk"]
+    assert result["realisations_of"] == result["train"]  # without it: every training clip
+    assert some["realisations_from_first_mm"] > 0
+    assert len(list(cache.rglob("cache.npz"))) == len(result["train"])  # nothing simulated
+    alone = _run(smoke_project, "--realisations-of", "circle-*")
+    assert alone.returncode == 2 and "needs --realisations" in alone.stderr
+    none = _run(smoke_project, "--realisations", "1", "--realisations-of", "no-such-clip")
+    assert none.returncode == 2 and "--realisations-of matches no training motion" in none.stderr
 
 
 def test_without_and_fit_validation(smoke_project):

@@ -67,7 +67,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--realisations", type=int, default=None, metavar="N",
         help="also simulate the proxy N more times, each moved 10 um at random by offsets of "
         "its own (the first is --floor's), and score every model against each of the N + 1: "
-        "how much a figure against one simulation is a draw (cached too)",
+        "how much a figure against one simulation is a draw; from N = 2, the mean of the other "
+        "simulations against each too, about the best a prediction can do (cached too)",
     )  # fmt: skip
     p.add_argument(
         "--inception",
