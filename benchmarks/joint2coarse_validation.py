@@ -70,6 +70,11 @@ def _clip(project: Project, name: str) -> Joint2CoarseClip:
     return Joint2CoarseClip(joints, root_rot, positions, name=name)
 
 
+def _matching(names: list[str], patterns: list[str]) -> list[str]:
+    """The ``names`` that match any of ``patterns`` (names or shell patterns), in their order."""
+    return [n for n in names if any(fnmatch.fnmatch(n, p) for p in patterns)]
+
+
 def _realisation(project: Project, config, name: str, seed: int) -> Joint2CoarseClip:
     """Training clip ``name`` on another simulation of its motion: the proxy moved 10 um by the
     offsets of ``seed`` (cached in the scratch folder, as ``dng eval joint2coarse`` caches)."""
@@ -164,20 +169,20 @@ def main() -> None:
             f"{cfg.window} frames holds {cfg.num_samples} (give e.g. --set window=66)"
         )
     splits = joint2coarse_splits(config)
-    left_out = [n for n in splits["train"] if any(fnmatch.fnmatch(n, p) for p in args.without)]
+    left_out = _matching(splits["train"], args.without)
     if args.without and not left_out:
         ap.error(f"--without matches no training motion (they are: {', '.join(splits['train'])})")
     splits["train"] = [n for n in splits["train"] if n not in left_out]
     if not splits["train"]:
         ap.error("--without leaves no training motion")
-    moved = [n for n in splits["validation"] if any(fnmatch.fnmatch(n, p) for p in args.train_on)]
+    moved = _matching(splits["validation"], args.train_on)
     if args.train_on and not moved:
         ap.error(f"--train-on matches no validation motion ({', '.join(splits['validation'])})")
     if moved and len(moved) == len(splits["validation"]):
         ap.error("--train-on leaves no validation motion to score (see --fit-validation)")
     splits["train"] += moved
     splits["validation"] = [n for n in splits["validation"] if n not in moved]
-    fitted = [n for n in splits["test"] if any(fnmatch.fnmatch(n, p) for p in args.fit_test)]
+    fitted = _matching(splits["test"], args.fit_test)
     if args.fit_test and not fitted:
         ap.error(f"--fit-test matches no test motion ({', '.join(splits['test'])})")
     if args.realisations < 0:
@@ -186,9 +191,7 @@ def main() -> None:
     if args.realisations_of:
         if not args.realisations:
             ap.error("--realisations-of needs --realisations N (N at least 1)")
-        again_of = [
-            n for n in splits["train"] if any(fnmatch.fnmatch(n, p) for p in args.realisations_of)
-        ]
+        again_of = _matching(splits["train"], args.realisations_of)
         if not again_of:
             ap.error(f"--realisations-of matches no training motion ({', '.join(splits['train'])})")
     clips = [_clip(project, name) for name in splits["train"] + fitted]

@@ -319,8 +319,11 @@ def realisation_errors(predictions: dict, simulations: list) -> dict:
             "mean_mm_each": [float(e.mean_mm) for e in errors],
         }
 
+    count = len(simulations)
+    # the mean of the others of each: (their sum - it) / (S - 1)
+    total = np.sum(simulations, axis=0, dtype=np.float64)
     return {
-        "simulations": len(simulations),
+        "simulations": count,
         "error_mm": {
             model: summary([vertex_errors(pred, sim) for sim in simulations])
             for model, pred in predictions.items()
@@ -329,14 +332,9 @@ def realisation_errors(predictions: dict, simulations: list) -> dict:
             [vertex_errors(a, b) for a, b in combinations(simulations, 2)]
         ),
         "mean_of_others_mm": summary(
-            [
-                vertex_errors(
-                    np.mean([o for j, o in enumerate(simulations) if j != i], axis=0), sim
-                )
-                for i, sim in enumerate(simulations)
-            ]
+            [vertex_errors((total - sim) / (count - 1), sim) for sim in simulations]
         )
-        if len(simulations) >= 3
+        if count >= 3
         else None,
     }
 
