@@ -25,6 +25,10 @@ def register(subparsers) -> None:
     p.add_argument("project", nargs="?", help="project folder (made by dng demo)")
     p.add_argument("--size", default="1500x940", metavar="WxH", help="window size in pixels")
     p.add_argument(
+        "--play", action="store_true",
+        help="start playing PROJECT's motion as soon as it is loaded (no input needed)",
+    )  # fmt: skip
+    p.add_argument(
         "--tour", metavar="DIR",
         help="drive the main flow automatically, save screenshots and timings into DIR, exit",
     )  # fmt: skip
@@ -44,4 +48,6 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--tour needs a trained PROJECT")
         return run_tour(args.project, args.tour, width=width, height=height)
 
-    return run_gui(args.project, width=width, height=height)
+    if args.play and not args.project:
+        raise InputError("--play needs a trained PROJECT")
+    return run_gui(args.project, width=width, height=height, play=args.play)

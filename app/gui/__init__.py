@@ -44,10 +44,14 @@ def start_application():
     return app
 
 
-def run(project=None, *, width: int = 1500, height: int = 940) -> int:
-    """Open the studio window (on ``project`` when given) and run until it is closed."""
+def run(project=None, *, width: int = 1500, height: int = 940, play: bool = False) -> int:
+    """Open the studio window (on ``project`` when given) and run until it is closed;
+    ``play``: start playing the project's motion once it is loaded."""
     from app.gui.controller import Studio
 
     start_application()
-    Studio(project, width=width, height=height).run_loop()
+    studio = Studio(project, width=width, height=height)
+    if play:
+        studio.player.play_when_loaded = True
+    studio.run_loop()
     return 0

@@ -51,7 +51,7 @@ from PIL import ImageGrab
 
 from app.gui.model import Cancelled, GuiSettings, process_age
 from app.gui.model import save_settings as write_settings
-from app.gui.player import Player
+from app.gui.player import LIVE_REDRAW_HZ, PLAY_REDRAW_HZ, Player
 from app.gui.tabs.export import ExportTab
 from app.gui.tabs.garment import GarmentTab
 from app.gui.tabs.motion import MotionTab
@@ -77,6 +77,9 @@ class Studio:
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()  # main-thread work (post)
         self._pending = 0
         self._last_tick = 0.0
+        self._needs_redraw = True
+        self._last_redraw = 0.0
+        self.redraws = 0  # window redraws asked for by :meth:`service` (tests read it)
         self.errors: list[str] = []  # every error shown (tests read it)
         self.open_seconds: float | None = None
         # the parts (the view's widgets call them, so they exist before it)
@@ -121,6 +124,7 @@ class Studio:
                 fn = self._inbox.get_nowait()
             except queue.Empty:
                 break
+            self._needs_redraw = True  # a result changes widgets or the scene
             try:
                 if not self.closed:
                     fn()
@@ -131,15 +135,36 @@ class Studio:
                 with self._lock:
                     self._pending -= 1
         now = time.perf_counter()
-        if self.closed or now - self._last_tick < 1.0 / TICK_HZ:
+        if self.closed:
             return
-        self._last_tick = now
-        self.player.tick(now)
-        if self.pipeline_tab.job_running:
-            self.pipeline_tab.update_widgets()
-        if self.garment_tab.loading is not None:
-            what, since = self.garment_tab.loading
-            self.view.status.text = f"{what} ... {now - since:.0f} s"
+        if now - self._last_tick >= 1.0 / TICK_HZ:
+            self._last_tick = now
+            if self.player.tick(now):
+                self._needs_redraw = True
+            if self.pipeline_tab.job_running:
+                before = (self.view.job_label.text, self.view.progress.value)
+                self.pipeline_tab.update_widgets()
+                if (self.view.job_label.text, self.view.progress.value) != before:
+                    self._needs_redraw = True
+            if self.garment_tab.loading is not None:
+                what, since = self.garment_tab.loading
+                text = f"{what} ... {now - since:.0f} s"
+                if text != self.view.status.text:
+                    self.view.status.text = text
+                    self._needs_redraw = True
+        # A redraw that renders the 3D view anew is paced at PLAY_REDRAW_HZ (Filament draws
+        # every frame it is asked for, and a software 3D frame costs 0.1-0.6 s); one that only
+        # changes widgets and images, at LIVE_REDRAW_HZ.
+        hz = (
+            PLAY_REDRAW_HZ
+            if self.view.scene_dirty and self.player.main_view() == "scene"
+            else LIVE_REDRAW_HZ
+        )
+        if self._needs_redraw and now - self._last_redraw >= 1.0 / hz:
+            self._needs_redraw = False
+            self._last_redraw = now
+            self.redraws += 1
+            self.view.redraw()
 
     def run_loop(self) -> None:
         """The window's main loop (``dng gui``): Open3D's tick, then :meth:`service`, until

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from core.body.shape import BodyShape
-from core.camera import Camera, CameraKey, make_camera, orbit_eye
+from core.camera import Camera, CameraKey, make_camera, orbit_eye, project
 from core.errors import InputError
 from core.fileio import atomic_path
 from core.mesh import (
@@ -202,6 +202,67 @@ def pose_from_camera(camera, distance: float = 2.5) -> CameraPose:
         tuple(float(x) for x in up),
         float(camera.fov_y_deg),
     )
+
+
+#: Framing: the camera's azimuth round the subject (degrees from +z towards +x), its elevation
+#: (degrees above the target) and the margin left round the subject (1.1: a tenth of the view).
+FRAME_AZIMUTH_DEG = 20.0
+FRAME_ELEVATION_DEG = 8.0
+FRAME_MARGIN = 1.1
+#: A restored camera is kept while it shows at least this share of the body's or the
+#: garment's vertices; below it for both, it shows neither and the view is framed anew.
+MIN_SHOWN_SHARE = 0.2
+
+
+def framing_pose(
+    points: np.ndarray,
+    aspect: float,
+    fov_deg: float = 40.0,
+    azimuth_deg: float = FRAME_AZIMUTH_DEG,
+    elevation_deg: float = FRAME_ELEVATION_DEG,
+    margin: float = FRAME_MARGIN,
+) -> CameraPose:
+    """The pose that frames ``points`` (N, 3), world metres, y up: looking at the centre of
+    their bounding box from ``azimuth_deg`` / ``elevation_deg``, as close as keeps every point
+    inside a view of vertical field of view ``fov_deg`` and ``aspect`` (width / height), with
+    ``margin`` (> 1) to spare."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(1)]
+    if len(pts) == 0:
+        return CameraPose(fov_deg=float(fov_deg))
+    target = 0.5 * (pts.min(0) + pts.max(0))
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    back = np.array([math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el)])
+    right = np.cross((0.0, 1.0, 0.0), back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    rel = pts - target
+    x, y, z = np.abs(rel @ right), np.abs(rel @ up), rel @ back  # z: towards the camera
+    tan_v = math.tan(math.radians(fov_deg) / 2.0)
+    tan_h = tan_v * max(float(aspect), 1e-3)
+    distance = float(np.max(z + margin * np.maximum(x / tan_h, y / tan_v)))
+    distance = max(distance, 0.3)
+    eye = target + distance * back
+    return CameraPose(
+        tuple(float(v) for v in eye),
+        tuple(float(v) for v in target),
+        (0.0, 1.0, 0.0),
+        float(fov_deg),
+    )
+
+
+def shown_share(pose: CameraPose, points: np.ndarray, aspect: float) -> float:
+    """The share of ``points`` (N, 3) in front of ``pose``'s camera and inside its view of
+    ``aspect`` (width / height); 0 for no finite point."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(1)]
+    if len(pts) == 0:
+        return 0.0
+    h = 100
+    w = max(1, int(round(h * max(float(aspect), 1e-3))))
+    uv, depth = project(pts, pose.camera(w, h))
+    inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    return float(inside.mean())
 
 
 def orbit_poses(

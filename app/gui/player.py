@@ -18,13 +18,16 @@ import open3d.visualization.gui as gui
 
 from app.gui.model import (
     CPU_RENDER_HEIGHTS,
+    MIN_SHOWN_SHARE,
     PLAY_SPEEDS,
     RENDER_SIZES,
     CameraPose,
     RateMeter,
     adapt_render_height,
     camera_from_gl,
+    framing_pose,
     pose_from_camera,
+    shown_share,
     side_by_side,
     view_image_size,
 )
@@ -75,6 +78,7 @@ class Player(Part):
         self.fps = 30.0
         self.frame = 0
         self.playing = False
+        self.play_when_loaded = False  # ``dng gui --play``: play the first motion loaded
         self._play_start = (0.0, 0)
         self.body_frames = None
         self.body_faces = None
@@ -124,16 +128,18 @@ class Player(Part):
 
     # ------------------------------------------------------------------ the play clock
 
-    def tick(self, now: float) -> None:
+    def tick(self, now: float) -> bool:
         """Show the play clock's frame at most ``PLAY_REDRAW_HZ`` times a second and the
         newest live render at most ``LIVE_REDRAW_HZ`` times a second (from the studio's
-        service, between Open3D ticks)."""
+        service, between Open3D ticks). True when something shown changed (the window needs a
+        redraw)."""
         if not (self.playing and self.num_frames):
-            return
+            return False
         if not self.settings.loop and self.play_position() >= self.num_frames - 1:
             self.show_frame(self.num_frames - 1)
             self.pause()
-            return
+            return True
+        changed = False
         neural = self.main_view() != "scene"
         if neural or now - self._last_redraw >= 1.0 / PLAY_REDRAW_HZ:
             t = self.play_position()
@@ -141,10 +147,13 @@ class Player(Part):
                 self._last_redraw = now
                 self.show_frame(t)
                 self.play_frames_shown += 1
+                changed = True
         if self._shown_live is not None and now - self._last_live >= 1.0 / LIVE_REDRAW_HZ:
             self._last_live = now
             self._show_live(*self._shown_live)
             self._shown_live = None
+            changed = True
+        return changed
 
     def play_position(self) -> int:
         """The frame the play clock is at now (at the play speed; looping, or held on the
@@ -253,8 +262,9 @@ class Player(Part):
     def set_motion(self, r: dict, restore: bool = False) -> None:
         """Play what the Motion tab loaded: ``r`` holds the frame count ``n``, ``fps``, the
         per-frame ``body`` (n, Vb, 3) and ``proxy`` (n, Vp, 3) float32 vertices with their
-        faces, the proxy's ``proxy_uvs``, ``sim`` (n, Vs, 3) or None with ``sim_edges``, the
-        motion's ``name`` and a default ``camera``. ``restore``: the saved camera and frame."""
+        faces, the proxy's ``proxy_uvs``, ``sim`` (n, Vs, 3) or None with ``sim_edges`` and the
+        motion's ``name``. ``restore``: the saved camera (kept while it shows the body or the
+        garment) and frame; otherwise the camera frames both."""
         self.pause()
         self.num_frames, self.fps = r["n"], r["fps"]
         self.body_frames, self.body_faces = r["body"], r["body_faces"]
@@ -263,12 +273,50 @@ class Player(Part):
         self.sim_frames, self.sim_edges = r["sim"], r["sim_edges"]
         self.motion_name = r["name"]
         self.enter_mode("play")
+        start = min(max(self.settings.frame if restore else 0, 0), self.num_frames - 1)
         pose = self.settings.camera_pose() if restore else None
+        if pose is not None and not self._shows_subject(pose, start):
+            self.view.status.text = "the saved camera showed neither body nor garment: view reset"
+            pose = None
         if pose is None:
-            pose = pose_from_camera(r["camera"], 2.5)
+            pose = self.framing(start)
         self.set_camera(pose.eye, pose.target, pose.up, pose.fov_deg)
-        start = self.settings.frame if restore else 0
-        self.show_frame(min(max(start, 0), self.num_frames - 1))
+        self.show_frame(start)
+        if self.play_when_loaded:
+            self.play_when_loaded = False
+            self.play()
+
+    def main_aspect(self) -> float:
+        """Width over height of the image the main area shows (half of it for each image of
+        the comparison)."""
+        w, h = self.view.main_size
+        return w / max(h, 1) / (2.0 if self.main_view() == "compare" else 1.0)
+
+    def framing(self, t: int) -> CameraPose:
+        """The pose that frames the body and the garment (Joint2Coarse's proxy) at frame
+        ``t`` in the main area."""
+        points = np.concatenate([self.body_frames[t], self.proxy_frames[t]])
+        fov = self.view.gl_matrices()[2] or 40.0
+        return framing_pose(points, self.main_aspect(), fov_deg=fov)
+
+    def _shows_subject(self, pose: CameraPose, t: int) -> bool:
+        aspect = self.main_aspect()
+        return (
+            max(
+                shown_share(pose, self.body_frames[t], aspect),
+                shown_share(pose, self.proxy_frames[t], aspect),
+            )
+            >= MIN_SHOWN_SHARE
+        )
+
+    def reset_view(self) -> None:
+        """Frame the body and the garment at the current frame ("Reset view", key R); in the
+        garment mode, the Garment tab's garment and rest body."""
+        if self.mode == "play" and self.num_frames:
+            pose = self.framing(self.frame)
+            self.set_camera(pose.eye, pose.target, pose.up, pose.fov_deg)
+        else:
+            self.studio.garment_tab.frame_view()
 
     def show_frame(self, t: int, render: bool = True) -> None:
         if not self.num_frames:
@@ -304,6 +352,7 @@ class Player(Part):
             gui.MouseEvent.Type.WHEEL,
             gui.MouseEvent.Type.BUTTON_UP,
         ):
+            self.view.scene_changed()  # Open3D moves the camera: render the 3D view anew
             self.studio.post(self._camera_moved)
         return gui.Widget.EventCallbackResult.IGNORED
 
@@ -354,13 +403,11 @@ class Player(Part):
         (square) when the 3D view is shown, else at the neural viewport's render height with
         the view's aspect (half of it for each image of the comparison)."""
         view, proj, _ = self.view.gl_matrices()
-        shown = self.main_view()
-        if shown == "scene":
+        if self.main_view() == "scene":
             size = self.settings.render_size
             return camera_from_gl(view, proj, size, size)
-        w, h = self.view.main_size
-        aspect = w / max(h, 1) / (2.0 if shown == "compare" else 1.0)
-        return camera_from_gl(view, proj, *view_image_size(self.neural_height, aspect))
+        size = view_image_size(self.neural_height, self.main_aspect())
+        return camera_from_gl(view, proj, *size)
 
     # ------------------------------------------------------------------ the live render
 

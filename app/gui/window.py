@@ -104,6 +104,11 @@ class StudioWindow:
         self.scene.scene.set_lighting(
             rendering.Open3DScene.LightingProfile.NO_SHADOWS, (0.3, -0.8, -0.5)
         )
+        # Scene caching: a window redraw re-renders the 3D view only after :meth:`scene_changed`
+        # (geometry, visibility, camera), so a redraw for a label or an image costs no 3D frame.
+        self.scene.enable_scene_caching(True)
+        #: The 3D view changed since the last :meth:`redraw` (the studio paces such redraws).
+        self.scene_dirty = True
         w.add_child(self.scene)
 
         # the neural viewport: the same place as the 3D view (one of them is shown); the
@@ -145,12 +150,16 @@ class StudioWindow:
         self.loop_check = gui.Checkbox("loop")
         self.loop_check.checked = True
         self.loop_check.set_on_checked(player.set_loop)
+        self.reset_button = gui.Button("Reset view")
+        self.reset_button.horizontal_padding_em = 0.4
+        self.reset_button.set_on_clicked(player.reset_view)
         self.timeline.add_child(self.mode_combo)
         self.timeline.add_child(self.play_button)
         self.timeline.add_child(self.frame_slider)
         self.timeline.add_child(self.frame_label)
         self.timeline.add_child(self.speed_combo)
         self.timeline.add_child(self.loop_check)
+        self.timeline.add_child(self.reset_button)
         w.add_child(self.timeline)
 
         # right panel
@@ -387,7 +396,8 @@ class StudioWindow:
         tab.add_child(self.export_label)
         tab.add_child(
             gui.Label(
-                "keys: space play/pause, left/right step a frame,\nhome first frame; "
+                "keys: space play/pause, left/right step a frame,\nhome first frame, "
+                "r reset the view; "
                 "drag the neural view: orbit,\nright/shift drag pan, ctrl drag/wheel zoom"
             )
         )
@@ -463,6 +473,7 @@ class StudioWindow:
             gui.KeyName.RIGHT: lambda: self.studio.player.step(1),
             gui.KeyName.LEFT: lambda: self.studio.player.step(-1),
             gui.KeyName.HOME: lambda: self.studio.player.seek(0),
+            gui.KeyName.R: self.studio.player.reset_view,
         }
         action = actions.get(event.key)
         if action is None:
@@ -591,15 +602,24 @@ class StudioWindow:
         scene.add_geometry(name, geometry, material)
         scene.show_geometry(name, visible)
         self._geometry.add(name)
+        self.scene_changed()
 
     def remove(self, name: str) -> None:
         if name in self._geometry:
             self.scene.scene.remove_geometry(name)
             self._geometry.discard(name)
+            self.scene_changed()
 
     def show(self, name: str, visible: bool) -> None:
         if name in self._geometry:
             self.scene.scene.show_geometry(name, visible)
+            self.scene_changed()
+
+    def scene_changed(self) -> None:
+        """The 3D view's content or camera changed: its next window redraw renders it anew
+        (scene caching keeps the last 3D frame otherwise)."""
+        self.scene.force_redraw()
+        self.scene_dirty = True
 
     def has(self, name: str) -> bool:
         return name in self._geometry
@@ -607,6 +627,7 @@ class StudioWindow:
     def frame_camera(self, lo: np.ndarray, hi: np.ndarray, fov: float = 40.0) -> None:
         box = o3d.geometry.AxisAlignedBoundingBox(np.asarray(lo, float), np.asarray(hi, float))
         self.scene.setup_camera(fov, box, box.get_center())
+        self.scene_changed()
 
     def look_at(self, eye, target, up, fov: float) -> None:
         # The projection comes from setup_camera (Open3D's own near/far for a box around the
@@ -617,6 +638,7 @@ class StudioWindow:
         self.scene.setup_camera(float(fov), box, target.astype(np.float32))
         self.scene.look_at(target.astype(np.float32), eye.astype(np.float32), up)
         self.scene.center_of_rotation = target.astype(np.float32)
+        self.scene_changed()
 
     def gl_matrices(self) -> tuple[np.ndarray, np.ndarray, float]:
         """The 3D view camera's (view, projection, vertical fov)."""
@@ -641,4 +663,6 @@ class StudioWindow:
         self.play_button.text = "Pause" if playing else "Play"
 
     def redraw(self) -> None:
+        """Ask Open3D to draw the window at its next tick (the 3D view too if it changed)."""
+        self.scene_dirty = False
         self.window.post_redraw()

@@ -128,10 +128,15 @@ class GarmentTab(Part):
         v.set_lines("target_wire", mesh.vertices, unique_edges(mesh.faces), COLOURS["target_wire"])
         v.set_mesh("rest_body", bv, bf, COLOURS["body"])
         self.studio.player.apply_visibility()
-        lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
-        v.frame_camera(lo - 0.1, hi + 0.1)
+        self.frame_view()
         v.status.text = f"loaded {Path(self.garment_name).name}"
         self.derive_proxy()
+
+    def frame_view(self) -> None:
+        """Frame the loaded garment (or, before one is loaded, nothing changes)."""
+        if self.garment is not None:
+            lo, hi = self.garment.vertices.min(0), self.garment.vertices.max(0)
+            self.view.frame_camera(lo - 0.1, hi + 0.1)
 
     def proxy_config(self) -> ProxyConfig:
         s = self.studio.settings

@@ -173,7 +173,6 @@ class MotionTab(Part):
                 "sim_edges": None if faces is None else unique_edges(faces),
                 "name": motion.name,
                 "j2c_ms": pb.joint2coarse_ms,
-                "camera": pb.default_camera(0, 64, 64, azimuth_deg=20.0),
             }
 
         def done(r) -> None:
