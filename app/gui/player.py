@@ -109,6 +109,7 @@ class Player(Part):
         self._frame_ms: float | None = None  # smoothed ms per neural render
         self._last_adapt = 0.0
         self._scene_stale = False  # the 3D view's meshes lag the frame (hidden meanwhile)
+        self._followed: np.ndarray | None = None  # the body's floor centre the camera follows
 
     def apply_settings(self) -> None:
         """Put the settings into the timeline's and the live panel's widgets."""
@@ -273,6 +274,7 @@ class Player(Part):
         self.sim_frames, self.sim_edges = r["sim"], r["sim_edges"]
         self.motion_name = r["name"]
         self.enter_mode("play")
+        self._followed = None
         start = min(max(self.settings.frame if restore else 0, 0), self.num_frames - 1)
         pose = self.settings.camera_pose() if restore else None
         if pose is not None and not self._shows_subject(pose, start):
@@ -323,6 +325,7 @@ class Player(Part):
             return
         t = int(t) % self.num_frames
         self.frame = t
+        self._follow(t)
         v = self.view
         v.set_frame(t, self.num_frames, self.fps)
         if self.main_view() != "scene":
@@ -344,6 +347,20 @@ class Player(Part):
             self.render_now()
 
     # ------------------------------------------------------------------ the camera
+
+    def _follow(self, t: int) -> None:
+        """Move the camera with the body's travel over the floor (x, z of its bounding box's
+        centre) since the last frame shown, so that a dance that crosses the room stays in
+        view; the user's orbit, pan and zoom are kept relative to the body."""
+        box = self.body_frames[t]
+        centre = 0.5 * (box.min(0) + box.max(0)) * np.array([1.0, 0.0, 1.0])
+        if self._followed is not None and np.any(centre != self._followed):
+            shift = centre - self._followed
+            pose = self.current_pose()
+            self.view.look_at(
+                np.add(pose.eye, shift), np.add(pose.target, shift), pose.up, pose.fov_deg
+            )
+        self._followed = centre
 
     def on_mouse(self, event) -> object:
         """Camera moves in the 3D view re-render the live view (after Open3D moved it)."""
