@@ -44,6 +44,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     retarget.add_argument("file", help=_FILE_HELP)
     retarget.add_argument("--out", required=True, help="BVH file to write")
     retarget.add_argument("--fps", type=float, default=None, help="resample to this frame rate")
+    retarget.add_argument(
+        "--floor",
+        default="auto",
+        metavar="auto|none|HEIGHT",
+        help="the source's floor: auto (default: the lowest ankle height several frames reach; "
+        "a frame or two lower is reported and stands on it), none (y = 0 of the file), or a "
+        "height in metres in the file's frame after unit conversion",
+    )
     _add_shape_option(retarget)
     _add_import_options(retarget)
     retarget.set_defaults(handler=_retarget)
@@ -109,6 +117,7 @@ def format_info(info: dict) -> str:
         f"root travel:     {info['root_path_length_m']:.3f} m path, "
         f"{info['root_displacement_m']:.3f} m net",
         f"root:            Hips <- {info['root']}",
+        *([format_floor(info["floor"])] if info.get("floor") else []),
         "joints:",
     ]
     width = max(len(c) for c in info["joints"])
@@ -147,20 +156,56 @@ def _make(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_floor(text: str) -> str | float:
+    """``--floor``: ``auto``, ``none`` or a finite height in metres."""
+    if text in ("auto", "none"):
+        return text
+    try:
+        height = float(text)
+    except ValueError:
+        height = math.nan
+    if not math.isfinite(height):
+        raise InputError(f"--floor must be auto, none or a height in metres, got {text!r}")
+    return height
+
+
 def _retarget(args: argparse.Namespace) -> int:
     from core.motion.load import load_motion
 
+    floor = parse_floor(args.floor)
     shape = BodyShape.parse(args.shape)
     motion = load_motion(
         args.file, fps=args.fps, scale=args.scale, mapping=args.mapping, repeat=args.repeat
     )
     positions = canonical_positions(motion)
 
-    out = retarget(positions, motion.fps, shape, name=motion.name)
+    out = retarget(positions, motion.fps, shape, name=motion.name, floor=floor)
     write_bvh(args.out, out)
     print(
         f"wrote {args.out}: {out.num_frames} frames at {out.fps:g} fps, "
         f"retargeted from {motion.meta.get('rig', 'unknown')} rig "
         f"({motion.meta.get('unit')}, {motion.meta.get('up_axis', 'y').upper()} up)"
     )
+    print(format_floor(out.meta["floor"], "mannequin"))
     return 0
+
+
+def format_floor(floor: dict, depth_of: str = "source") -> str:
+    """One or two lines on the floor: its height, how it was found, the contacts as frame
+    ranges and the frames below it (depth in the ``depth_of`` clip's metres)."""
+    ranges = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in floor["contact_ranges"])
+    if len(ranges) > 70:
+        ranges = ranges[:67] + "..."
+    how = {"support": "estimated", "given": "given", "none": "the file's y = 0"}[floor["method"]]
+    text = (
+        f"floor:           {floor['height_m']:.3f} m in the source ({how}); "
+        f"{floor['contact_frames']} contact frames: {ranges or 'none'}"
+    )
+    below = floor["below_frames"]
+    if below:
+        shown = ", ".join(str(f) for f in below[:10]) + (", ..." if len(below) > 10 else "")
+        text += (
+            f"\nwarning:         {len(below)} frames with a foot below the floor (deepest "
+            f"{100 * floor['below_deepest_m']:.1f} cm, {depth_of}): {shown}; they stand on it"
+        )
+    return text

@@ -28,8 +28,9 @@ from core.errors import InputError
 from core.motion.bvh import clip_to_motion, read_bvh
 from core.motion.deepmimic import DEEPMIMIC_SUFFIXES, read_deepmimic
 from core.motion.gltf import GLTF_SUFFIXES, gltf_to_motion
-from core.motion.mapping import JointMapping, map_skeleton, read_mapping_file
+from core.motion.mapping import JointMapping, canonical_positions, map_skeleton, read_mapping_file
 from core.motion.motion import Motion
+from core.motion.retarget import source_floor
 from core.skeleton import Skeleton, forward_kinematics
 
 #: Known units, metres per file unit.
@@ -372,6 +373,7 @@ def motion_info(motion: Motion) -> dict:
         "unit": motion.meta.get("unit", "m"),
         "unit_scale": motion.meta.get("unit_scale", 1.0),
         "standing_height_m": standing_height(motion, mapping),
+        "floor": source_floor(canonical_positions(motion, mapping), motion.fps).summary(),
         "root_path_length_m": path_len,
         "root_displacement_m": net,
         "varying_translations_m": motion.meta.get("varying_translations", {}),

@@ -22,11 +22,16 @@ it sends a few rest directions):
   follow the shin when it is lifted.
 
 The root moves like the source hips, scaled by the ratio of leg lengths; its height is set so the
-lower ankle is as far above the floor as the source's (scaled), the floor being the source's
-lowest ankle height over the clip; no foot point ever goes below y = 0.
+lower ankle is as far above the floor as the source's (scaled); no foot point ever goes below
+y = 0. The source's floor is estimated robustly (:func:`estimate_floor`: the lowest height of
+the lower ankle that several frames reach), so that one frame where a foot dips
+(a marker swap, a badly calibrated floor) does not lift the whole clip; such frames are reported
+and stand on the floor.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -336,8 +341,111 @@ def _leg_length(pos: np.ndarray) -> float:
     return float(np.median(np.concatenate(lengths)))
 
 
+#: Floor estimate: the lowest height of the lower ankle that at least SUPPORT_SHARE of the
+#: frames (and 2) reach within SUPPORT_BAND leg lengths above it. A dip of a frame or two (a
+#: marker swap) has no such support and cannot set the floor; a clip's real lowest stance does.
+#: A frame more than SUPPORT_BAND under the floor is reported as below it.
+SUPPORT_SHARE = 0.02
+SUPPORT_BAND = 0.012
+#: Contacts (reported): the lower ankle within CONTACT_BAND leg lengths of the floor, moving
+#: slower than CONTACT_SPEED leg lengths a second (a planted foot).
+CONTACT_BAND = 0.05
+CONTACT_SPEED = 0.5
+
+
+@dataclass(frozen=True)
+class FloorEstimate:
+    """The source's floor and how it was found (heights in the source's metres, Y up).
+
+    ``contacts`` (K,) int: frames where the lower ankle is planted near the floor; ``below``
+    (J,) int: frames whose lower ankle is more than the tolerance under the floor;
+    ``deepest_m``: how far the lowest of them is under it (0 when none); ``method``:
+    ``support`` (estimated), ``given`` (a height from the user) or ``none`` (y = 0)."""
+
+    height_m: float
+    contacts: np.ndarray
+    below: np.ndarray
+    deepest_m: float
+    method: str
+
+    def summary(self, scale: float = 1.0) -> dict:
+        """JSON-ready: the floor, the contacts as frame ranges, the frames below (``scale``
+        turns the depth into the mannequin's metres)."""
+        return {
+            "method": self.method,
+            "height_m": float(self.height_m),
+            "contact_frames": int(len(self.contacts)),
+            "contact_ranges": frame_ranges(self.contacts),
+            "below_frames": [int(f) for f in self.below],
+            "below_deepest_m": float(scale * self.deepest_m),
+        }
+
+
+def frame_ranges(frames: np.ndarray) -> list[list[int]]:
+    """Sorted frame indices as ``[[first, last], ...]`` runs of consecutive frames."""
+    frames = np.asarray(frames, np.int64)
+    if len(frames) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(frames) != 1)
+    starts = np.r_[frames[0], frames[breaks + 1]]
+    ends = np.r_[frames[breaks], frames[-1]]
+    return [[int(a), int(b)] for a, b in zip(starts, ends)]
+
+
+def estimate_floor(
+    ankles: np.ndarray, fps: float, leg: float, floor: str | float = "auto"
+) -> FloorEstimate:
+    """The floor under a clip from its two ankles.
+
+    Parameters
+    ----------
+    ankles : (T, 2, 3) float
+        Left and right ankle positions, metres, Y up.
+    fps : float
+        Frames per second (for the contacts' speed).
+    leg : float
+        The source's leg length, metres (the scale of the thresholds).
+    floor : ``"auto"`` (estimated), ``"none"`` (y = 0, the source's own zero) or a height in
+        the source's metres.
+    """
+    a = np.asarray(ankles, np.float64)
+    t = len(a)
+    side = a[..., 1].argmin(1)
+    lower = a[np.arange(t), side]  # (T, 3) the lower ankle each frame
+    low = lower[:, 1]
+    if floor == "auto":
+        order = np.sort(low)
+        need = min(t, max(2, int(np.ceil(SUPPORT_SHARE * t))))
+        reach = np.searchsorted(order, order + SUPPORT_BAND * leg, side="right") - np.arange(t)
+        height, method = float(order[np.flatnonzero(reach >= need)[0]]), "support"
+    elif floor == "none":
+        height, method = 0.0, "none"
+    else:
+        height, method = float(floor), "given"
+        if not np.isfinite(height):
+            raise InputError(f"retarget: the floor height must be finite, got {floor!r}")
+    velocity = np.gradient(lower, axis=0) * fps if t > 1 else np.zeros_like(lower)
+    slow = np.linalg.norm(velocity, axis=1) <= CONTACT_SPEED * leg
+    contacts = np.flatnonzero(slow & (np.abs(low - height) <= CONTACT_BAND * leg))
+    below = np.flatnonzero(low < height - SUPPORT_BAND * leg)
+    deepest = float(height - low.min()) if len(below) else 0.0
+    return FloorEstimate(height, contacts, below, deepest, method)
+
+
+def source_floor(positions: np.ndarray, fps: float, floor: str | float = "auto") -> FloorEstimate:
+    """:func:`estimate_floor` of a source clip: ``positions`` (T, 20, 3) as :func:`retarget`
+    takes them."""
+    src = _validate(positions, fps)
+    ankles = np.stack([src[:, SOURCE_JOINTS.index(f"{s}Foot")] for s in ("Left", "Right")], 1)
+    return estimate_floor(ankles, fps, _leg_length(src), floor)
+
+
 def retarget(
-    positions: np.ndarray, fps: float, shape: BodyShape = DEFAULT_SHAPE, name: str = ""
+    positions: np.ndarray,
+    fps: float,
+    shape: BodyShape = DEFAULT_SHAPE,
+    name: str = "",
+    floor: str | float = "auto",
 ) -> Motion:
     """Drive the mannequin of ``shape`` with the joint positions of another rig.
 
@@ -352,14 +460,15 @@ def retarget(
         The mannequin to drive.
     name : str
         Name of the clip, for reports.
+    floor : ``"auto"``, ``"none"`` or a height in the source's metres (:func:`estimate_floor`)
 
     Returns
     -------
     Motion
         On ``mannequin_skeleton(shape)`` (joint order ``MANNEQUIN_JOINTS``), rotations
         (T, 20, 3, 3) float32 and root positions (T, 3) float32. ``meta`` holds ``scale``
-        (mannequin leg length / source leg length) and ``source_floor`` (the source's lowest
-        ankle height, metres).
+        (mannequin leg length / source leg length), ``source_floor`` (the source's floor,
+        metres) and ``floor`` (:meth:`FloorEstimate.summary`, depths in mannequin metres).
 
     Raises
     ------
@@ -431,12 +540,14 @@ def retarget(
             d2 = _bone_dir(S, j1, j2, g[j0], d2_rest)
             g[j1] = _swing_from_parent(g[j0], d2_rest, d2, hinge)
             g[j2] = g[j1]  # hands and feet follow; feet are set below
-    # Root height: the lower source ankle's height above the source floor, scaled. Ankle
-    # positions do not depend on the feet's rotations, so they are known before the feet.
+    # Root height: the lower source ankle's height above the source floor, scaled; a frame
+    # below the floor stands on it. Ankle positions do not depend on the feet's rotations, so
+    # they are known before the feet.
     ankles_src = np.stack([S.p("LeftFoot")[:, 1], S.p("RightFoot")[:, 1]], 1)
-    floor_src = float(ankles_src.min())
+    found = estimate_floor(np.stack([S.p("LeftFoot"), S.p("RightFoot")], 1), fps, leg_src, floor)
+    floor_src = found.height_m
     ankle_rest = float(rest_m[MANNEQUIN_JOINTS.index("LeftFoot"), 1])
-    elevation = scale * (ankles_src - floor_src)  # (T, 2), mannequin metres
+    elevation = scale * np.maximum(ankles_src - floor_src, 0.0)  # (T, 2), mannequin metres
     root = np.zeros((t, 3))
     root[:, [0, 2]] = scale * src[:, 0, [0, 2]]
     local = _local_rotations(skel, g)
@@ -468,5 +579,10 @@ def retarget(
         root_positions=root.astype(np.float32),
         fps=float(fps),
         name=name,
-        meta={"source": "retarget", "scale": scale, "source_floor": floor_src},
+        meta={
+            "source": "retarget",
+            "scale": scale,
+            "source_floor": floor_src,
+            "floor": found.summary(scale),
+        },
     )
