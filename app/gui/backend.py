@@ -4,6 +4,7 @@ the widgets must do differently on each."""
 from __future__ import annotations
 
 import ctypes
+import os
 from pathlib import Path
 
 from core.errors import InputError
@@ -52,6 +53,16 @@ def select_backend(name: str) -> None:
 
 #: The backend :func:`select_backend` chose last (``default`` until it runs: Open3D's choice).
 _SELECTED = {"backend": "default"}
+
+
+def software_rendering() -> bool:
+    """Whether the window most likely draws on a software rasterizer (Mesa's llvmpipe under
+    Xvfb): no GPU device node (``/dev/dri/renderD*``, ``/dev/nvidia0``). ``DNG_GUI_SOFTWARE``
+    (``1`` or ``0``) overrides the guess."""
+    forced = os.environ.get("DNG_GUI_SOFTWARE")
+    if forced in ("0", "1"):
+        return forced == "1"
+    return not (any(Path("/dev/dri").glob("renderD*")) or Path("/dev/nvidia0").exists())
 
 
 def selected_backend() -> str:
