@@ -158,10 +158,10 @@ class Studio:
         # every frame it is asked for, and a software 3D frame costs 0.1-0.6 s); one that only
         # changes widgets and images, at LIVE_REDRAW_HZ.
         scene_frame = self.view.scene_dirty and self.player.main_view() == "scene"
-        if scene_frame and self._software:
-            # Under software rendering a new 3D frame can freeze llvmpipe for minutes
-            # (docs/gui.md, "Software rendering"): the 3D view is drawn anew on input and for
-            # screenshots only, as before; everything else still redraws by itself.
+        if self._software and self.player.main_view() == "scene":
+            # Under software rendering a 3D frame can freeze llvmpipe for minutes (docs/gui.md,
+            # "Software rendering"): while the 3D view is shown, the window is drawn on input
+            # and for screenshots only, as before; the neural view redraws by itself.
             return
         hz = PLAY_REDRAW_HZ if scene_frame else LIVE_REDRAW_HZ
         if self._needs_redraw and now - self._last_redraw >= 1.0 / hz:
