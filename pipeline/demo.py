@@ -26,6 +26,7 @@ from pipeline.config import (
 )
 from pipeline.deviations import as_json as deviations_json
 from pipeline.deviations import deviations_markdown, from_json, methods_markdown
+from pipeline.provenance import provenance
 from pipeline.stages.ablations import stage_ablation
 from pipeline.stages.baselines import stage_baselines
 from pipeline.stages.dataset import stage_dataset, stage_testset
@@ -471,6 +472,7 @@ def run_demo(
     """
     project = Project(out)
     project.root.mkdir(parents=True, exist_ok=True)
+    made_by = provenance()
     if force:
         for record in project.root.rglob(RECORD_NAME):
             record.unlink()
@@ -569,6 +571,7 @@ def run_demo(
         "preset": preset_name,
         "command": f"dng demo --preset {preset_name} --out {out}",
         "project": str(out),
+        "provenance": made_by,
         "config": config.as_params(),
         "stage_seconds": progress.stage_times,
         "simulation_processes": sim_processes,
