@@ -8,14 +8,19 @@ import math
 import numpy as np
 import pytest
 import torch
+from torch.nn import functional as F
 
 from core.errors import InputError
 from tests.conftest import assert_close
 from training import inception
 from training.metrics import (
+    GMSD_C,
+    LUMA,
     PSNR_CAP_DB,
     FrameMetrics,
+    detail_ratio,
     flicker,
+    gmsd,
     mse,
     psnr,
     ssim,
@@ -263,3 +268,60 @@ def test_frechet_distance_of_known_gaussians():
     assert d == pytest.approx(1.0)
     sing = np.zeros((3, 3))  # singular covariances take the eps offset path
     assert inception.frechet_distance(mu1, sing, mu1, sing) == pytest.approx(0.0, abs=1e-6)
+
+
+def _textured(n=2, size=48, seed=0) -> torch.Tensor:
+    """Images with detail at the finest scale (uniform noise), in [0, 1]."""
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(n, 3, size, size, generator=g, dtype=torch.float64)
+
+
+def _box_blur(x: torch.Tensor) -> torch.Tensor:
+    return F.avg_pool2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), 3, 1)
+
+
+def test_gmsd_and_detail_ratio_know_identical_blurred_and_shifted_images():
+    x = _textured()
+    mask = torch.ones(2, 1, 48, 48, dtype=torch.float64)
+    assert torch.equal(gmsd(x, x, mask), torch.zeros(2, dtype=torch.float64))
+    assert torch.allclose(detail_ratio(x, x, mask), torch.ones(2, dtype=torch.float64))
+    blurred, shifted = _box_blur(x), torch.roll(x, 1, dims=3)
+    # blur removes fine detail: far below 1; a shift moves it: as much detail, but GMSD sees it
+    assert (detail_ratio(blurred, x, mask) < 0.3).all()
+    ones = torch.ones(2, dtype=torch.float64)
+    assert torch.allclose(detail_ratio(shifted, x, mask), ones, atol=0.02)
+    assert (gmsd(blurred, x, mask) > 0.1).all() and (gmsd(shifted, x, mask) > 0.1).all()
+    # more blur, worse GMSD; noise added: detail above 1
+    assert (gmsd(_box_blur(blurred), x, mask) > gmsd(blurred, x, mask)).all()
+    g = torch.Generator().manual_seed(1)
+    noisy = (x + 0.2 * torch.randn(x.shape, generator=g, dtype=torch.float64)).clamp(0, 1)
+    assert (detail_ratio(noisy, x, mask) > 1.1).all()
+
+
+def test_gmsd_matches_an_obvious_loop_and_counts_only_the_mask():
+    x, y = _textured(1, 12, 2), _textured(1, 12, 3)
+    a, b = (sum(w * im[0, c].numpy() for c, w in enumerate(LUMA)) for im in (y, x))
+
+    def mag(im, i, j):  # Prewitt, divided by 3, at pixel (i, j)
+        gx = (im[i - 1 : i + 2, j - 1] - im[i - 1 : i + 2, j + 1]).sum() / 3
+        gy = (im[i - 1, j - 1 : j + 2] - im[i + 1, j - 1 : j + 2]).sum() / 3
+        return np.hypot(gx, gy)
+
+    sims = []
+    for i in range(1, 11):
+        for j in range(1, 11):
+            p, t = mag(a, i, j), mag(b, i, j)
+            sims.append((2 * p * t + GMSD_C) / (p * p + t * t + GMSD_C))
+    assert gmsd(y, x).item() == pytest.approx(np.std(sims), abs=1e-12)
+    # outside the mask anything goes; an empty mask is NaN
+    mask = torch.zeros(1, 1, 12, 12, dtype=torch.float64)
+    mask[..., :6, :] = 1
+    damaged = y.clone()
+    damaged[..., 8:, :] = 0
+    assert gmsd(damaged, x, mask).item() == pytest.approx(gmsd(y, x, mask).item())
+    assert torch.isnan(gmsd(y, x, torch.zeros_like(mask))).all()
+
+
+def test_detail_ratio_of_a_flat_ground_truth_is_nan():
+    flat = torch.full((1, 3, 8, 8), 0.5, dtype=torch.float64)
+    assert torch.isnan(detail_ratio(_textured(1, 8), flat)).all()

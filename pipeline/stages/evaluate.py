@@ -106,6 +106,7 @@ def stage_eval_motion(
 
     from training.baselines import load_for_evaluation
     from training.evaluate import EvalConfig, evaluate_motion, fid_scores
+    from training.metrics import METRICS as metric_names
 
     protocols = eval_motions(config)
     if motion not in protocols:
@@ -125,6 +126,7 @@ def stage_eval_motion(
     params = {
         "eval": eval_cfg.to_dict(),
         "methods": {k: [v[1], str(v[2])] for k, v in methods.items()},
+        "metrics": list(metric_names),
     }
 
     def work(out: Path) -> list[str]:
