@@ -13,7 +13,7 @@ from core.errors import InputError
 #: (a later issue's) is skipped.
 COMMANDS = (
     "demo", "motion", "body", "garment", "proxy", "simulate", "dataset",
-    "train", "predict", "render", "finetune", "eval", "bench", "export", "gui",
+    "train", "predict", "render", "finetune", "eval", "report", "bench", "export", "gui",
 )  # fmt: skip
 
 
