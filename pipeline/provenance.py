@@ -74,7 +74,9 @@ def machine() -> dict:
     return {
         "system": f"{platform.system()} {platform.release()}",
         "cpu": cpu,
-        "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "cores": len(os.sched_getaffinity(0))
+        if hasattr(os, "sched_getaffinity")
+        else os.cpu_count(),
         "python": platform.python_version(),
         "torch": torch_version,
         "cuda": cuda,

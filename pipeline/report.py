@@ -11,8 +11,9 @@ import json
 from pathlib import Path
 
 from core.errors import InputError
+from core.fileio import atomic_path
 from pipeline.demo import _joint2coarse_splits_markdown, _metrics_table, _ratio_sentence
-from pipeline.deviations import deviations_markdown, from_json
+from pipeline.deviations import deviations_markdown, from_json, methods_markdown
 
 #: The page's sections, in order: ``(anchor, heading)``. The README links to these anchors; a
 #: test checks the generator writes every one.
@@ -24,6 +25,7 @@ SECTIONS = (
     ("simulation", "Simulation"),
     ("speed", "Speed"),
     ("run-time", "Run time"),
+    ("what-each-method-got", "What each method got"),
     ("deviations-from-the-paper", "Deviations from the paper"),
 )
 
@@ -77,7 +79,9 @@ def headline_rows(report: dict) -> list[tuple[str, str]]:
     methods = ev.get("methods", {})
     shown = [m for m in HEADLINE_METHODS if m in methods]
     if shown:
-        names = " / ".join("DNR" if m == "dnr" else "Pix2Pix" if m == "pix2pix" else m for m in shown)
+        names = " / ".join(
+            "DNR" if m == "dnr" else "Pix2Pix" if m == "pix2pix" else m for m in shown
+        )
         for key, what, fmt in (
             ("mse_masked", "garment-region MSE", ".4f"),
             ("gmsd_masked", "garment-region GMSD (edges; 0 = the ground truth's)", ".3f"),
@@ -88,7 +92,9 @@ def headline_rows(report: dict) -> list[tuple[str, str]]:
             if not any(methods[m].get(key) for m in shown):
                 continue  # a report made before the metric existed
             values = [_cell(_mean(methods[m].get(key)), fmt) for m in shown]
-            rows.append((f"Neural render on the unseen motions, {what}: {names}", " / ".join(values)))
+            rows.append(
+                (f"Neural render on the unseen motions, {what}: {names}", " / ".join(values))
+            )
         full, region = ev.get("mse_ratio_ours_to_dnr"), ev.get("mse_masked_ratio_ours_to_dnr")
         if full is not None and region is not None:
             rows.append(
@@ -173,13 +179,17 @@ def _renderer_markdown(report: dict) -> list[str]:
     blocks = []
     if ev.get("validation"):
         v = ev["validation"]
-        blocks.append((f"V, the validation motion `{v['motion']}` (settings chosen here)", v["methods"]))
+        blocks.append(
+            (f"V, the validation motion `{v['motion']}` (settings chosen here)", v["methods"])
+        )
     blocks.append(
         ("U, the unseen motions " + ", ".join(f"`{m}`" for m in ev["test_motions"]), ev["methods"])
     )
     if ev.get("protocol_p"):
         p = ev["protocol_p"]
-        blocks.append((f"P, the training motion `{p['motion']}` (the paper's protocol)", p["methods"]))
+        blocks.append(
+            (f"P, the training motion `{p['motion']}` (the paper's protocol)", p["methods"])
+        )
     for title, methods in blocks:
         lines += ["", f"**{title}**", "", *_metrics_table(methods)]
         ratio = _ratio_sentence(methods)
@@ -266,7 +276,9 @@ def _bench_markdown(name: str, data) -> list[str]:
         keys = [k for k in rows[0] if not isinstance(rows[0][k], (dict, list))]
         lines += ["| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
         for r in rows:
-            cells = [f"{r.get(k):.4g}" if isinstance(r.get(k), float) else str(r.get(k)) for k in keys]
+            cells = [
+                f"{r.get(k):.4g}" if isinstance(r.get(k), float) else str(r.get(k)) for k in keys
+            ]
             lines.append("| " + " | ".join(cells) + " |")
         return lines
     if isinstance(data, dict):
@@ -294,8 +306,6 @@ def write_picture(project: Path, page_dir: Path, report: dict) -> str | None:
     256-colour PNG (a third of the size); return its path relative to ``page_dir`` (None: no
     such picture in the project)."""
     from PIL import Image
-
-    from core.fileio import atomic_path
 
     motion = picture_motion(report)
     source = project / "eval" / str(motion) / "compare.png"
@@ -343,6 +353,16 @@ def results_markdown(
         "simulation": _simulation_markdown(report),
         "speed": _speed_markdown(report),
         "run-time": _run_time_markdown(report),
+        "what-each-method-got": (
+            [
+                "Trainable parameters of what renders (no discriminator), the training budget and "
+                "losses of each method of the comparison.",
+                "",
+                methods_markdown(from_json(report["against_the_paper"])[1]),
+            ]
+            if "against_the_paper" in report
+            else ["Not recorded in this report."]
+        ),
         "deviations-from-the-paper": (
             [deviations_markdown(from_json(report["against_the_paper"])[0])]
             if "against_the_paper" in report

@@ -405,9 +405,7 @@ def test_cli_bad_extension_exits_2(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_contact_sheet(tmp_path):
-    """Render every garment on the default body, front/side/back, to /tmp/garments.png."""
-    from pathlib import Path
-
+    """Render every garment on the default body, front/side/back, to garments.png in tmp_path."""
     import pyvista as pv  # heavy (VTK): only this slow test draws
 
     pv.OFF_SCREEN = True
@@ -433,7 +431,7 @@ def test_contact_sheet(tmp_path):
             plotter.camera_position = [cam, (0, 0.95, 0), (0, 1, 0)]
             if j == 0:
                 plotter.add_text(f"{name} V={g.mesh.num_vertices}", font_size=9)
-    out = Path("/tmp/garments.png")
+    out = tmp_path / "garments.png"
     plotter.screenshot(str(out))
     plotter.close()
     assert out.stat().st_size > 10_000

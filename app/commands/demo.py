@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-
 from pathlib import Path
 
 from core.errors import InputError
+from core.mesh import load_mesh
 from pipeline.config import preset
 from pipeline.demo import run_demo
+from templates.garments import GARMENTS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,8 +54,6 @@ def run(args: argparse.Namespace) -> int:
 def _garment(value: str) -> str:
     """A built-in garment's name, or a mesh file's absolute path once it loads and validates
     (a bad file is refused now, not twenty minutes into the run)."""
-    from templates.garments import GARMENTS
-
     if not Path(value).suffix:
         if value not in GARMENTS:
             raise InputError(
@@ -62,7 +61,5 @@ def _garment(value: str) -> str:
                 f"choose from {', '.join(sorted(GARMENTS))} or give a mesh file"
             )
         return value
-    from core.mesh import load_mesh
-
     load_mesh(value)
     return str(Path(value).resolve())

@@ -7,6 +7,9 @@ import json
 from pathlib import Path
 
 from core.errors import InputError
+from core.fileio import atomic_open
+from pipeline.demo import report_markdown
+from pipeline.report import headline_rows, load_report, results_markdown, write_picture
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -48,10 +51,6 @@ def _benches(items: list[str]) -> dict[str, object]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from core.fileio import atomic_open
-    from pipeline.demo import report_markdown
-    from pipeline.report import headline_rows, load_report, results_markdown, write_picture
-
     report = load_report(args.project)
     benches = _benches(args.bench)
     if args.results is None:

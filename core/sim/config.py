@@ -42,36 +42,15 @@ FABRICS: dict[str, Fabric] = {
 }
 
 
-#: Named (substeps, iterations) trade-offs. Style3D is projective dynamics: every step
-#: alternates local projections and a global linear solve, and too few of those iterations
-#: leave the cloth softer than it is. On a spin the waist's turn then does not reach the hem
-#: within a step: the hem lags, the skirt winds up, rises and closes in. The long skirt (1k
-#: vertices, 42 mm) spun at 1.06 rev/s for 1 s: the hem lags the waist by 0.21 turn at 8 x 16
-#: (0.10 with 40 linear iterations), 0.32 at 8 x 4, 0.22 at 8 x 8; at 16 x 32 (1.9k) it
-#: follows the waist exactly, at 0.8 % strain. A full skirt (480 vertices) on the same spin:
-#: hem radius 0.62x standing at 8 x 16, 0.70x at 16 x 16, 1.10x (flared) at 16 x 32. So
-#: ``final`` is 16 x 32; ``medium`` is the former final. ``dng bench sim`` measures each
-#: against a run twice as fine (2x substeps, iterations, linear iterations); on 989 vertices and
-#: 15 frames (``--qualities draft,medium``) the mean / p95 distances in mm were, draft then
-#: medium: dance 41.8 / 110, 15.0 / 39; walk 27.1 / 90, 21.8 / 65; jump 22.6 / 78, 12.9 / 33;
-#: twirl 47.8 / 114, 28.2 / 87; CMU 01_01 26.0 / 68, 15.2 / 46 (README: the full table).
-#: ``final`` on the twirl (folded long skirt, 1488 vertices): 29.4 / 101 from 32 x 64. Not the
-#: cloth's own sensitivity: moving the garment 10 um moves a plain run 1.1-2.2 mm mean
-#: (``--floor``). The iterations converge slowly; :data:`CHEBYSHEV_RHO` accelerates a proxy's.
-#: Even so one walk frame at 8 x 16 ends 9.5 mm (mean) from the same steps converged, 0.6 mm at
-#: 8 x 256 (``benchmarks/sim_step_convergence.py``, on a quick proxy; README "Simulation quality").
+#: Named (substeps, iterations) trade-offs of Style3D. Too few iterations leave the cloth softer
+#: than it is: on a spin the hem lags the waist and the skirt winds up. ``final`` is the
+#: trustworthy one (a spin flares the skirt); ``dng bench sim`` measures each against a run twice
+#: as fine (docs/decisions.md, "QUALITY").
 QUALITY = {"draft": (2, 8), "medium": (8, 16), "final": (16, 32)}
 
-#: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``).
-#: Found on the twirl, a test motion: on the quick project's 989-vertex proxy (8 x 16) the hem
-#: keeps 0.85x its standing radius instead of 0.57x (32 x 32 plain: 0.93x; 16 x 32 accelerated:
-#: 1.00x). Checked on the validation spin (``val-dance-spin``): 0.88x accelerated, 0.78x plain,
-#: against 0.91x at 32 x 32 and 1.03x at 32 x 64 plain (``dng simulate ... --json``). And
-#: ``dng bench sim`` puts it closer to its 2x finer run on the dance, twirl and CMU clip, further
-#: on the walk and jump (README "Simulation quality"). 0.99 over 0.98 and 0.995 was read off all
-#: five bench clips, two of them test motions; on the other three alone (dance, walk, jump) 0.98
-#: is 28.6 mm mean against 29.9 for 0.99 (and 25.9 plain, whose reference is less converged):
-#: not re-chosen. 0.999 blew up the long skirt's lead-in.
+#: Chebyshev weight of a single surface's Style3D iterations (``SimConfig.chebyshev_rho=None``):
+#: accelerated, a spun proxy's hem keeps close to a finer run's radius; 0.999 blew up a lead-in
+#: (docs/decisions.md, "CHEBYSHEV_RHO").
 CHEBYSHEV_RHO = 0.99
 
 #: Cloth solvers :func:`core.sim.simulate.simulate` drives: newton's Style3D and VBD, and ours,
@@ -162,11 +141,8 @@ class SimConfig:
     """Thickness kept between cloth and body (metres): the particle radius in contacts."""
     layer_friction: float = 0.1
     """Friction against the body of a proxy kept off it by the layers beneath it (``thickness``
-    of :func:`core.sim.simulate.simulate`), in place of the fabric's: the envelope touches the
-    body through those layers, which slide. With the fabric's (cotton, 0.35) the thick contact
-    snagged the quick project's proxy on a kicking leg and dragged it to the ankle: ``dng demo``
-    at commit 9b7cead stopped at the Boxing_Toes window at 22 s (frame 60, stretch 1.12, a
-    blow-up); at 0.1 all 28 of the project's clips ran (``dng demo``, the README's /tmp/q42)."""
+    of :func:`core.sim.simulate.simulate`), in place of the fabric's: those layers slide. The
+    fabric's snagged the quick proxy on a kicking leg (docs/decisions.md, "layer_friction")."""
     self_contact_thickness: float = 0.003
     """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
     It must stay below the gaps a layered garment is built with (the built-in templates stack

@@ -52,7 +52,7 @@ class Joint2CoarseConfig(PlainConfig):
     103, (256, 256) 46.3 / 96, (512, 512) 45.9 / 94 (within seed noise, 4x the weights),
     (256, 256, 256) 47.5 / 98; the paper's model on the same splits 55.8 / 124. Those were
     measured with the 6-clip library; with the 19-clip one the quick preset sets (128, 128) and
-    6000 ``residual_steps`` (its comment in ``pipeline/config.py`` gives the figures)."""
+    6000 ``residual_steps`` (docs/decisions.md gives the figures)."""
     residual_basis: int = 128
     """``ours``: the network predicts the coefficients of this many principal components of the
     training residuals (as ``residual_widths``: 64: 46.8 / 97, 256: 46.7 / 98, the same within
@@ -92,7 +92,7 @@ class Joint2CoarseConfig(PlainConfig):
     diagonal after the first, each member's last layer onto the shared principal components, so
     a frame costs little more than one member's). Chosen on the quick preset's validation
     motions (its model, seeds 0 to 2; ``python benchmarks/joint2coarse_validation.py P --seeds
-    0 1 2 --set residual_members=N``): the quick preset's comment in ``pipeline/config.py``."""
+    0 1 2 --set residual_members=N``): docs/decisions.md."""
     residual_frame: str = "hips"
     """``ours``: the frame the residual is predicted in: ``hips`` (the hips' rotation, every
     vertex alike) or ``skinned`` (each vertex's own: the blend of its bones' rotations by its
@@ -109,7 +109,7 @@ class Joint2CoarseConfig(PlainConfig):
     current hips' frame, so a pelvis tilted as no training clip tilts it still gives familiar
     features, and gravity's direction in that frame) or ``hips+heading`` (those and the current
     pose in the heading frame too). Model files written before this field existed read as
-    ``heading``. The quick preset sets ``hips+heading`` (its comment in ``pipeline/config.py``
+    ``heading``. The quick preset sets ``hips+heading`` (docs/decisions.md
     gives the figures)."""
     mirror: bool = False
     """Train on each training clip's left-right mirror too (:mod:`training.joint2coarse.augment`:

@@ -39,28 +39,12 @@ class RendererConfig(PlainConfig):
     """Channels of the motion-feature map (19 joints x 5 frames)."""
     use_motion: bool = True
     """Feed the motion features to the network (False: the "without motion features" ablation,
-    whose input is the texture sample and the proxy's coverage mask, one channel, as DNR's
-    input has it). The motion features, zero off the proxy, also tell the network where the
-    proxy is; on the texture alone, whose texels start at N(0, 0.01), the blend's mask never
-    left the background on the quick project (garment-region MSE 0.2276 on its validation
-    motion after 100 steps, and an empty mask in the previews after 600: ``python
-    benchmarks/renderer_validation.py P --method ours --set use_motion=false --steps 100``), so
-    the ablation measured the missing coverage, not the motion features. Model files of the
-    ablation written before the mask channel fail to load (their weights do not match)."""
+    whose input is the texture sample and the proxy's coverage mask, as DNR's; without the mask
+    it never found the garment: docs/decisions.md, "use_motion")."""
     use_temporal: bool = True
     """Condition the SPADE block on frame t-1's latent and show the discriminator pairs of
-    consecutive frames (False: the "no temporal conditioning" ablation: SPADE conditioned on
-    zeros for t-1, a discriminator that sees single frames). What it is worth, on the quick
-    project's validation motion (``python benchmarks/renderer_validation.py P --method ours
-    --set use_temporal=false [--set w_fm=0 --set w_gan=0] --seeds S``; garment-region MSE /
-    SSIM / flicker on Joint2Coarse's proxy): with FM 1 and GAN 0.1, seed 0, 0.0269 / 0.616 /
-    0.0103 without against 0.0257 / 0.662 / 0.0099 with; on L1 alone (the quick preset) the
-    same to 0.0001 at seeds 0 and 1 (0.0253 / 0.681 / 0.0098 without, 0.0253 / 0.680 / 0.0098
-    with, at seed 0): without a discriminator, the network makes no use of frame t-1 here.
-    Nor could it gain much: an embedded target (quick's ground truth) is a function of the
-    proxy's current frame alone, so frame t-1 tells the network nothing about frame t's image
-    that frame t's inputs do not; a simulated target (the paper preset) has dynamics of its
-    own for it to carry."""
+    consecutive frames (False: the "no temporal conditioning" ablation). Worth nothing on L1
+    alone with an embedded target (docs/decisions.md, "use_temporal")."""
     base_width: int = 16
     """Channels of the encoder's first layer; each downsampling doubles it up to ``max_width``.
     The speed knob."""
@@ -98,13 +82,9 @@ class RendererConfig(PlainConfig):
     w_gan: float = 0.5
     """Weight of the generator's GAN loss."""
     w_texture: float = 0.0
-    """Weight of DNR's texture regulariser on our neural texture (the first 3 channels of the
-    sampled texture pulled towards the image on the proxy,
-    :func:`~training.renderer.model.texture_colour_loss`); 0, the paper's renderer, has none.
-    On the quick project's validation motion, with the texels at one rate (``python
-    benchmarks/renderer_validation.py P --method ours --set w_texture=1 --set
-    texture_lr_scale=1 --seeds 0``): 0.0208 / 0.0101 garment-region MSE against 0.0210 /
-    0.0104 without, within seed noise: not taken."""
+    """Weight of DNR's texture regulariser on our neural texture
+    (:func:`~training.renderer.model.texture_colour_loss`); 0, the paper's renderer has none, and
+    1 gained nothing beyond seed noise (docs/decisions.md, "w_texture")."""
     lr_g: float = 2e-4
     """Adam learning rate of the network and the neural texture (1e-4 in the paper and its
     preset; 2e-4 for the few thousand steps a CPU run can afford, as the baselines)."""
@@ -112,57 +92,18 @@ class RendererConfig(PlainConfig):
     """Adam learning rate of the discriminator."""
     lr_decay_from: float = 0.5
     """Fraction of a run's steps after which both learning rates fall linearly to zero at the
-    end (``training.schedule``); 1.0 keeps them constant, as the paper and its preset. With the
-    second half decaying rather than constant, on the quick demo's data set, simulated proxy,
-    our MSE fell from 0.0023 to 0.0019 (twirl 0.0019 -> 0.0017, CMU 0.0027 -> 0.0021) and SSIM
-    rose from 0.925 to 0.930 (``dng train renderer PROJECT --set lr_decay_from=1``, then
-    ``dng eval``, gives the constant run). Those were test clips; on the validation motion
-    (``python benchmarks/renderer_validation.py P --method ours --set lr_decay_from=1.0 --seeds
-    0 1``, with FM 1 and GAN 0.1 as quick had then) constant against falling gave a
-    garment-region MSE of 0.0250 / 0.0266 against 0.0257 / 0.0269 on Joint2Coarse's proxy,
-    0.0091 / 0.0129 against 0.0102 / 0.0124 on the simulated one, SSIM 0.658 / 0.651 against
-    0.662 / 0.655: no consistent difference, so it stays. Re-derived on the current ground
-    truth and quick's L1-alone loss (the same bench on the README's ``/tmp/q48``, seeds 0 and
-    1, garment-region MSE on Joint2Coarse's / the simulated proxy, mean of the seeds): falling
-    from half 0.0213 / 0.0111, constant 0.0223 / 0.0126, falling from a quarter 0.0214 /
-    0.0111: it stays."""
+    end (``training.schedule``); 1.0 keeps them constant, as the paper and its preset. 0.5 was
+    as good or better on validation (docs/decisions.md, "lr_decay_from")."""
     betas: tuple[float, float] = (0.5, 0.999)
     """Adam betas of both optimisers."""
     texture_lr_scale: float = 100.0
-    """Factor on ``lr_g`` (and on its schedule) for the neural texture's texels; 1 is the
-    network's rate, the paper's and its preset's. With Adam a parameter moves about the rate
-    each step whatever the size of its gradient, so at 2e-4 over quick's 600 steps a texel
-    could move 0.09 at most against its initial noise of 0.01: in the README's ``/tmp/q52``
-    the trained textures of ours and DNR were still that noise (a spread of 0.011 to 0.014 per
-    channel, largest texel 0.07 and 0.10: ``python -c "from training.renderer.train import
-    load_model; from training.baselines.train import load_baseline; [print(float(t.detach().std((2,
-    3)).mean()), float(t.detach().abs().max())) for m in (load_model('P/renderer/renderer.pt')[1],
-    load_baseline('P/baselines/dnr/dnr.pt')) for t in m.texture.levels]"``). Chosen on the quick project's validation motion
-    (``python benchmarks/renderer_validation.py P --method ours --set texture_lr_scale=S
-    --seeds 0 1``, P = the README's ``/tmp/q50``; garment-region MSE on Joint2Coarse's / the
-    simulated proxy at seeds 0 and 1): 1: 0.0210 / 0.0104 and 0.0216 / 0.0110; 10: 0.0196 /
-    0.0091 and 0.0216 / 0.0112; 100: 0.0195 / 0.0085 and 0.0200 / 0.0088, garment SSIM 0.708
-    and 0.708 against 0.697 and 0.692; 1000 (seed 0): 0.0196 / 0.0085. DNR, which takes ours'
-    factor in a project (``pipeline.config.baseline_config``), gains too (``--method dnr``):
-    1: 0.0191 / 0.0092 and 0.0196 / 0.0099; 10: 0.0189 / 0.0088 and 0.0190 / 0.0091; 100:
-    0.0188 / 0.0087 and 0.0192 / 0.0089. Model files written before this field existed read
-    as 1."""
+    """Factor on ``lr_g`` (and its schedule) for the neural texture's texels (1: the network's
+    rate, the paper's). Adam moves a texel about the rate a step, so at 1 the textures stayed
+    noise (docs/decisions.md, "texture_lr_scale"). Older model files read as 1."""
     adam_eps: float = 1e-15
-    """Adam's ``eps`` (both optimisers; every method has the same). A neural texel is seen by a
-    few pixels of a mean-reduced loss, so its gradient is tiny: about 1e-10 on the quick
-    project, where torch's default 1e-8 let Adam take about a hundredth of the rate's step on
-    it. Our renderer without motion features, which has only the texture to learn from, then
-    never left the background (garment-region MSE 0.2324 on the validation motion after 60
-    steps and after 6000; 0.0219 after 60 at 1e-15: ``python
-    benchmarks/renderer_validation.py P --method ours --steps 60 --set use_motion=false [--set
-    adam_eps=1e-8]``, P = the README's quick project). On the quick preset's validation motion
-    (the same bench, 600 steps, garment-region MSE on Joint2Coarse's / the simulated proxy,
-    garment SSIM) 1e-15 against 1e-8: ours 0.0210 / 0.0104 against 0.0206 / 0.0100 at seed 0,
-    0.0216 / 0.0110 against 0.0217 / 0.0111 at seed 1; DNR 0.0191 / 0.0092 both; Pix2Pix
-    0.0192 / 0.0092 against 0.0192 / 0.0091, SSIM 0.575 against 0.584 (seed 0): the same
-    within seed noise, so it is set for the texture's sake. Model files written before this
-    field existed read as 1e-8. (Neural feature grids are trained with 1e-15 for this reason,
-    as instant-NGP's hash grids are.)"""
+    """Adam's ``eps`` (both optimisers; every method has the same): a neural texel's gradient is
+    about 1e-10, where torch's 1e-8 let Adam take a hundredth of a step (docs/decisions.md,
+    "adam_eps"). Older model files read as 1e-8."""
     batch_size: int = 2
     """Samples per step (per process under torchrun)."""
     steps: int = 1000
