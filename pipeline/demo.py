@@ -39,45 +39,33 @@ from pipeline.stages.renderer import stage_renderer
 from pipeline.stages.simulate import stage_embedding, stage_simulate
 from pipeline.stages.videos import stage_videos
 
-#: Seconds per unit of work of each stage on the 2-core development machine, from the quick
-#: preset's run (``dng demo --out /tmp/q18``: its stage table divided by the units below; its
-#: Joint2Coarse stage from a rerun with today's settings, /tmp/q19; the target's embedding and
-#: the renderer from ``dng demo --out /tmp/q27``, 25.1 minutes from an empty folder). Only their
-#: ratios matter once a stage has run: the time left is the remaining work at the rate measured
-#: so far.
+#: Seconds per unit of work of each stage on the 2-core development machine, measured on quick
+#: runs (docs/decisions.md, "_SECONDS_PER"). Only their ratios matter once a stage has run: the
+#: time left is the remaining work at the rate measured so far.
 _SECONDS_PER = {
-    "motion": 0.26,  # the motions stage, per motion (7.2 s for 28)
+    "motion": 0.26,  # the motions stage, per motion
     "setup": 2.5,  # garment, proxy: per stage
     # proxy simulation at 8 x 16, Chebyshev-accelerated: per clip (set-up, lead-in) and per frame
-    # (14 s for 100 frames, 19 s for 150, 34 s for 300)
     "sim_clip": 4.0,
     "sim_frame": 0.10,
-    # the implicit solver at 2 steps a frame (quick's, 0.3 mm root mean square), per frame
-    # beside sim_clip per clip: the 43 proxy clips' stage seconds in /tmp/q54 (1054 s for 6530
-    # frames, two at a time), less 4 s a clip
+    # the implicit solver at 2 steps a frame (quick's), per frame beside sim_clip per clip
     "implicit_frame": 0.135,
     # the detailed target embedded in the proxy's simulation and kept out of the body, per frame
-    # (151 s for the quick preset's 700 frames, /tmp/q27)
     "embed_frame": 0.22,
-    # the target bound to the proxy, once for every clip (quick's 39k-vertex target: 33 and 26 s
-    # in /tmp/q64 and /tmp/q65, beside two simulations)
+    # the target bound to the proxy, once for every clip
     "embedding": 30.0,
-    "target_frame": 23.0,  # the target simulated as cloth (dng bench trade: 22.9 s/frame)
-    # ground-truth renders per training sample (3 frames) at 128 px (186 s for quick's 750 in
-    # /tmp/q62)
+    "target_frame": 23.0,  # the target simulated as cloth, per frame
+    # ground-truth renders per training sample (3 frames) at 128 px
     "gt_sample": 0.25,
-    # Joint2Coarse, per step of the paper's model (ours trains first: 247 s for the quick
-    # preset's 7000 steps, alone, on a copy of /tmp/q61's project)
+    # Joint2Coarse, per step of the paper's model (ours trains first)
     "j2c_step": 0.035,
-    # test-set ground truth per sample at 128 px (112 s for quick's 280 in /tmp/q62)
+    # test-set ground truth per sample at 128 px
     "test_sample": 0.40,
-    # renderer step at 128 px, the baselines training beside it (quick, L1 alone: 439 s for 600
-    # steps in /tmp/q62, a quick run from an empty folder)
+    # renderer step at 128 px, the baselines training beside it
     "render_step": 0.73,
-    # evaluation per test sample and method (each proxy counts): 268 s for 280 samples of 6
-    # methods in /tmp/q62, the videos beside it
+    # evaluation per test sample and method (each proxy counts), the videos beside it
     "eval_sample": 0.16,
-    "video_frame": 0.34,  # videos, per frame of a test motion (98, 107 s for 300 in q61, q62)
+    "video_frame": 0.34,  # videos, per frame of a test motion
     "eval_report": 1.0,  # the evaluation's report, pooled from its motions' scores
 }
 
@@ -138,8 +126,7 @@ def stage_costs(config: PipelineConfig) -> list[float]:
         # sets, which count their share of the wall time (with two lanes, half their seconds)
         render = c["render_step"] * pixels * renderer_config(config).steps
         costs += [render]
-        # the baselines: three quarters of our renderer's seconds (326 s beside its 439 in
-        # /tmp/q62)
+        # the baselines: three quarters of our renderer's seconds ("_SECONDS_PER")
         costs += [0.375 * render] if config.baselines else []
         costs += [0.5 * cost for _, cost in late]
         costs += [render] * len(config.ablations)
@@ -863,6 +850,10 @@ def _against_the_paper_markdown(report: dict) -> list[str]:
     return lines
 
 
+#: How the report names each proxy solver (``PipelineConfig.sim_solver``).
+_SOLVER_NAMES = {"style3d": "newton's Style3D", "implicit": "our implicit solver"}
+
+
 def report_markdown(report: dict) -> str:
     """The human-readable report: every figure with the command that produced it."""
     cmd = f"`{report['command']}`"
@@ -902,7 +893,7 @@ def report_markdown(report: dict) -> str:
         json.dumps({"proxy": counts, "distance": dist}, indent=1)[:1500],
         "```",
         "",
-        "## Simulation (newton, CPU)",
+        f"## Simulation ({_SOLVER_NAMES.get(cfg.get('sim_solver'), 'newton')}, CPU)",
         "",
         "Hem ratio: the hem's mean distance from the waist's axis over the clip's second half "
         "over frame 0's (above 1: it flared out, below 1: it closed in; n/a for an embedded "
