@@ -26,11 +26,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "eval",
         help="score the neural renderer against the baselines on unseen motions and cameras",
         description=(
-            "Render every test motion of the project (protocol U) and its training motion "
-            "(protocol P, the paper's), each from unseen cameras, with our renderer (on "
+            "Render the project's validation motion (protocol V, where settings are chosen), "
+            "every test motion (protocol U) and its training motion (protocol P, the paper's), "
+            "each from unseen cameras, with our renderer (on "
             "Joint2Coarse's proxy, and on the simulated proxy) and every trained baseline; "
             "report per-frame MSE (mean and std, pixel values in [0, 1]), PSNR, SSIM, their "
-            "garment-region versions, flicker, and FID / video FID when an InceptionV3 weights "
+            "garment-region versions, the garment's GMSD and detail ratio, flicker, and FID / "
+            "video FID when an InceptionV3 weights "
             "file is given. Writes PROJECT/eval/report.json and PROJECT/eval/MOTION/compare.png. "
             "Builds the "
             "test sets first when they are missing; the renderer and baselines must be trained "

@@ -46,11 +46,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     r.add_argument("project", help="project folder (made by dng demo)")
     r.add_argument("--preset", help="renderer preset (tiny, cpu, paper); default: the project's")
-    r.add_argument("--steps", type=int, help="optimisation steps (default: the preset's)")
+    r.add_argument(
+        "--steps",
+        type=int,
+        help="optimisation steps (default: the project's renderer_steps, else the preset's)",
+    )
     r.add_argument(
         "--source",
         choices=("sim", "joint2coarse"),
-        help="proxy to train on: simulated (default) or Joint2Coarse's prediction",
+        help="proxy to train on: simulated or Joint2Coarse's prediction (default: the "
+        "project's renderer_source; quick and smoke train on Joint2Coarse's)",
     )
     _add_workers(r)
     _add_set(r, "renderer", "--set w_gan=0 --set w_fm=0")
