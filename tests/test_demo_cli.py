@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
 import pytest
 
 from app.commands.demo import _garment
+from core.mesh import load_mesh, save_mesh
+from core.project import Project
+from pipeline.config import preset
+from pipeline.stages.garment import stage_garment
+from templates.garments import make_garment
 
 
 def test_a_builtin_name_stays_a_name_and_a_file_becomes_its_absolute_path(tmp_path, monkeypatch):
@@ -37,3 +45,15 @@ def test_a_bad_garment_is_refused_by_name_before_the_run_starts(
     assert problem.lower() in err.lower() and name in err
     assert not out.exists(), "a refused run must not start a project"
     assert len(err.strip().splitlines()) == 1, "one line, not a traceback"
+
+
+def test_a_garment_file_in_centimetres_lands_in_metres_on_the_mannequin(tmp_path):
+    """The target is read in the unit the proxy stage reads it in, so the two agree."""
+    config = preset("smoke")
+    skirt = make_garment("slit-skirt", None, config.body, 0)
+    save_mesh(tmp_path / "cm.obj", dataclasses.replace(skirt, vertices=skirt.vertices * 100))
+    config = dataclasses.replace(config, garment=str(tmp_path / "cm.obj"))
+    lines: list[str] = []
+    target, _ = load_mesh(stage_garment(Project(tmp_path / "p"), config, lines.append))
+    assert np.abs(target.vertices - skirt.vertices).max() < 1e-5
+    assert any("read as cm" in line for line in lines)

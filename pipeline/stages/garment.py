@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
+
+import numpy as np
 
 from core.mesh import load_mesh, save_mesh
 from core.project import Project
+from core.proxy.pipeline import input_scale
 from pipeline.config import Log, PipelineConfig, quiet
 from templates.garments import make_garment
 
@@ -27,6 +30,11 @@ def stage_garment(project: Project, config: PipelineConfig, log: Log = quiet) ->
             )
         else:
             mesh, _ = load_mesh(config.garment)
+            # a file in centimetres or millimetres is read as the proxy stage reads it
+            scale, unit = input_scale(mesh.vertices, "auto")
+            if scale != 1.0:
+                mesh = replace(mesh, vertices=(mesh.vertices * scale).astype(np.float32))
+                log(f"  {config.garment}: read as {unit} (its size), scaled to metres")
         save_mesh(out / "target.obj", mesh)
         log(f"  {config.garment}: {mesh.num_vertices} vertices, {mesh.num_faces} faces")
         return ["target.obj"]
