@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Body shape: a sub-project PROJECT/finetune/body-NAME/ with the same garment and "
             "proxy, the proxy simulated on the new body, a new data set and Joint2Coarse; "
-            "every renderer weight is fine-tuned (25%% of the training steps by default). "
+            "every renderer weight is fine-tuned (25% of the training steps by default). "
             "Background: the data set recomposited over the images; only the last decoder "
             "layers, the refinement blocks and the discriminator train; the model goes to "
             "PROJECT/finetune/background-NAME/. Play the result with dng render "

@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--motion",
         required=True,
         metavar="M.bvh|NAME|KIND",
-        help="a BVH file (any rig, retargeted), a project motion (e.g. dance) or a procedural "
+        help="a motion file (BVH, glTF/GLB or DeepMimic; any rig, retargeted), a project motion (e.g. dance) or a procedural "
         "kind (walk, twirl, ...)",
     )
     p.add_argument("--frames", type=int, default=None, help="first N frames (procedural: make N)")

@@ -127,7 +127,7 @@ def register(subparsers) -> None:
     )  # fmt: skip
     p.add_argument(
         "--export", nargs="*", default=[], metavar="FILE",
-        help="also write the cache as .pc2, .mdd or an OBJ-sequence folder",
+        help="also write the cache as .pc2, .mdd, .npz, USD (.usd, .usda, .usdc) or an OBJ-sequence folder",
     )  # fmt: skip
     p.add_argument(
         "--body-check", action="store_true",
