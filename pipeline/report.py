@@ -29,6 +29,8 @@ SECTIONS = (
     ("deviations-from-the-paper", "Deviations from the paper"),
 )
 
+#: A stage that took less than this (seconds) was reused from an earlier run, not made.
+REUSED_BELOW_S = 1.0
 #: The methods of the headline, as the report names them.
 HEADLINE_METHODS = ("ours", "dnr", "pix2pix")
 
@@ -117,7 +119,12 @@ def headline_rows(report: dict) -> list[tuple[str, str]]:
             )
         )
     if report.get("total_seconds"):
-        rows.append(("The whole run, minutes", f"{report['total_seconds'] / 60:.1f}"))
+        stages = report.get("stage_seconds") or {}
+        reused = sum(1 for v in stages.values() if v < REUSED_BELOW_S)
+        minutes = f"{report['total_seconds'] / 60:.1f}"
+        if reused:
+            minutes += f" (a rerun: {reused} of {len(stages)} stages reused)"
+        rows.append(("The whole run on this machine, minutes", minutes))
     return rows
 
 
@@ -383,6 +390,20 @@ def results_markdown(
         for name, data in benches.items():
             lines += _bench_markdown(name, data)
     return "\n".join(lines) + "\n"
+
+
+def with_headline(page: str, report: dict, path: str | Path = "README.md") -> str:
+    """``page`` (a README) with its copy of the headline table replaced by ``report``'s: the
+    table that starts with the headline's header row. An :class:`InputError` if it has none."""
+    lines = page.split("\n")
+    header = headline_markdown({})[0]
+    if header not in lines:
+        raise InputError(f"{path}: no results table to update (a line {header!r})")
+    start = lines.index(header)
+    end = start
+    while end < len(lines) and lines[end].startswith("|"):
+        end += 1
+    return "\n".join([*lines[:start], *headline_markdown(report), *lines[end:]])
 
 
 def load_report(project: str | Path) -> dict:

@@ -9,7 +9,13 @@ from pathlib import Path
 from core.errors import InputError
 from core.fileio import atomic_open
 from pipeline.demo import report_markdown
-from pipeline.report import headline_rows, load_report, results_markdown, write_picture
+from pipeline.report import (
+    headline_rows,
+    load_report,
+    results_markdown,
+    with_headline,
+    write_picture,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,6 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("project", help="a project folder made by `dng demo`")
     p.add_argument("--results", default=None, metavar="FILE.md", help="write the results page here")
+    p.add_argument(
+        "--readme", default=None, metavar="README.md",
+        help="with --results: also update this page's copy of the headline table",
+    )  # fmt: skip
     p.add_argument(
         "--bench", nargs="+", default=[], metavar="NAME=FILE.json",
         help="benchmark JSON to add to the results page (e.g. sim=OUT/sim/sim.json)",
@@ -54,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
     report = load_report(args.project)
     benches = _benches(args.bench)
     if args.results is None:
-        if benches:
-            raise InputError("--bench goes with --results")
+        if benches or args.readme:
+            raise InputError("--bench and --readme go with --results")
         out = Path(args.project) / "report.md"
         with atomic_open(out, "w", encoding="utf-8") as f:
             f.write(report_markdown(report))
@@ -66,8 +76,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.results)
     if out.suffix.lower() != ".md":
         raise InputError(f"{out}: the results page is Markdown (.md)")
+    readme = None
+    if args.readme is not None:
+        path = Path(args.readme)
+        if not path.is_file():
+            raise InputError(f"{path}: no such file")
+        readme = with_headline(path.read_text(encoding="utf-8"), report, path)
     picture = write_picture(Path(args.project), out.parent, report)
     with atomic_open(out, "w", encoding="utf-8") as f:
         f.write(results_markdown(report, benches, picture=picture))
     print(f"wrote {out}" + (f" and {out.parent / picture}" if picture else ""))
+    if readme is not None:
+        with atomic_open(args.readme, "w", encoding="utf-8") as f:
+            f.write(readme)
+        print(f"updated the results table in {args.readme}")
     return 0
