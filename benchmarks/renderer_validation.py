@@ -52,7 +52,7 @@ from training.dataset import GarmentDataset
 from training.evaluate import EvalConfig, evaluate_motion
 from training.renderer.train import train_renderer
 
-METRICS = ("mse_masked", "ssim_masked", "mse", "flicker")
+METRICS = ("mse_masked", "gmsd_masked", "detail_masked", "ssim_masked", "mse", "flicker")
 SOURCES = {"joint2coarse": "Joint2Coarse's proxy", "sim": "simulated proxy"}
 
 
@@ -158,6 +158,7 @@ def main() -> None:
             trained = f", trained in {run['train_s']:.0f} s" if "train_s" in run else ""
             print(
                 f"seed {run['seed']}  {SOURCES[src]:21s} MSE garment {f['mse_masked']:.4f}  "
+                f"GMSD garment {f['gmsd_masked']:.3f}  detail garment {f['detail_masked']:.2f}  "
                 f"SSIM garment {f['ssim_masked']:.4f}  MSE {f['mse']:.4f}  "
                 f"flicker {f['flicker']:.4f}{trained}"
             )

@@ -31,7 +31,14 @@ def test_the_bench_reproduces_the_projects_validation_figures(smoke_project, tmp
     # Same settings, same seed: the project's own model scores the same on V (eval/report.json).
     scored = json.loads((project / "eval" / "report.json").read_text())["validation"]["methods"]
     for src, name in (("joint2coarse", "dnr-gan"), ("sim", "dnr-gan (simulated proxy)")):
-        for metric in ("mse_masked", "ssim_masked", "mse", "flicker"):
+        for metric in (
+            "mse_masked",
+            "gmsd_masked",
+            "detail_masked",
+            "ssim_masked",
+            "mse",
+            "flicker",
+        ):
             assert abs(out["runs"][0]["figures"][src][metric] - scored[name][metric]["mean"]) < 1e-6
     # Nothing of the project was retrained or rewritten.
     assert before == {p: p.stat().st_mtime_ns for p in (project / "baselines").rglob("*")}
