@@ -463,6 +463,7 @@ def run_demo(
     if force:
         for record in project.root.rglob(RECORD_NAME):
             record.unlink()
+    made_by["from_empty"] = not any(project.root.rglob(RECORD_NAME))
     project.save_settings({"preset": preset_name, "pipeline": config.as_params()})
     tests = [m.name for m in available_test_motions(config)]
     train = config.train_motion.name

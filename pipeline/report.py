@@ -29,8 +29,6 @@ SECTIONS = (
     ("deviations-from-the-paper", "Deviations from the paper"),
 )
 
-#: A stage that took less than this (seconds) was reused from an earlier run, not made.
-REUSED_BELOW_S = 1.0
 #: The methods of the headline, as the report names them.
 HEADLINE_METHODS = ("ours", "dnr", "pix2pix")
 
@@ -119,12 +117,10 @@ def headline_rows(report: dict) -> list[tuple[str, str]]:
             )
         )
     if report.get("total_seconds"):
-        stages = report.get("stage_seconds") or {}
-        reused = sum(1 for v in stages.values() if v < REUSED_BELOW_S)
         minutes = f"{report['total_seconds'] / 60:.1f}"
-        if reused:
-            minutes += f" (a rerun: {reused} of {len(stages)} stages reused)"
-        rows.append(("The whole run on this machine, minutes", minutes))
+        if (report.get("provenance") or {}).get("from_empty") is False:
+            minutes += " (a rerun: it reused the stages an earlier run had made)"
+        rows.append(("The run on this machine, minutes", minutes))
     return rows
 
 
@@ -152,7 +148,12 @@ def _provenance_markdown(report: dict) -> list[str]:
         f"{report.get('preset', 'custom')} --out PROJECT`, then `dng report PROJECT --results "
         "docs/results.md`.",
         f"- Ground truth: {ground_truth(report)}.",
-        f"- Commit: {f'`{commit}`' if commit else 'not recorded'}.",
+        f"- Commit: {f'`{commit}`' if commit else 'not recorded'}"
+        + {
+            True: ", from an empty project folder.",
+            False: ", a rerun over an earlier run's "
+            "stages (each stage keeps the parameters and inputs that made it).",
+        }.get(made.get("from_empty"), "."),
         f"- Date: {made.get('date', 'not recorded')}.",
         f"- Machine: {where}.",
         "- Splits: settings are chosen on the validation motion (protocol V); the unseen test "

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import build_parser
-from pipeline.report import SECTIONS, headline_markdown, results_markdown
+from pipeline.report import SECTIONS, headline_markdown, headline_rows, results_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -223,3 +223,13 @@ def test_a_malformed_report_is_refused_by_name(tmp_path, dng, text):
     (tmp_path / "report.json").write_text(text)
     code, _, err = dng("report", str(tmp_path))
     assert code == 2 and "report.json" in err
+
+
+def test_the_headline_says_when_a_run_reused_an_earlier_runs_stages():
+    base = {"preset": "quick", "total_seconds": 150.0}
+    fresh = {**base, "provenance": {"from_empty": True}}
+    rerun = {**base, "provenance": {"from_empty": False}}
+    assert headline_rows(fresh)[-1][1] == "2.5"
+    assert headline_rows(rerun)[-1][1].startswith("2.5 (a rerun")
+    assert "from an empty project folder" in results_markdown(fresh)
+    assert "a rerun over an earlier run's stages" in results_markdown(rerun)
