@@ -11,6 +11,7 @@ from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
+from core.errors import InputError
 from core.fileio import atomic_open, write_json
 from core.progress import StageEta
 from core.project import RECORD_NAME, Project
@@ -331,12 +332,15 @@ def _simulate_all(
             progress.stage(EMBEDDING_STAGE, lambda: stage_embedding(project, config, progress.log))
         for (motion, which), name in names.items():
             bar = _sim_bar(name)
-            progress.stage(
-                name,
-                lambda m=motion, w=which, b=bar: stage_simulate(
-                    project, config, m, w, progress.log, b
-                ),
-            )
+            try:
+                progress.stage(
+                    name,
+                    lambda m=motion, w=which, b=bar: stage_simulate(
+                        project, config, m, w, progress.log, b
+                    ),
+                )
+            except InputError as exc:
+                raise InputError(f"{exc.problem} (clip {motion}, {which})", exc.path) from None
         return 1
     progress.log(f"  simulating {workers} clips at a time, each in a process of its own")
     params = config.as_params()
@@ -373,7 +377,10 @@ def _simulate_all(
                 bind = False
             for future in wait(running, return_when=FIRST_COMPLETED).done:
                 motion, which = running.pop(future)
-                seconds, lines, _ = future.result()
+                try:
+                    seconds, lines, _ = future.result()
+                except InputError as exc:  # which clip, in the one line the user sees
+                    raise InputError(f"{exc.problem} (clip {motion}, {which})", exc.path) from None
                 for line in lines:
                     progress.log(line)
                 progress.finished(names[(motion, which)], seconds, seconds / workers)
