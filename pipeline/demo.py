@@ -340,7 +340,7 @@ def _simulate_all(
                     ),
                 )
             except InputError as exc:
-                raise InputError(f"{exc.problem} (clip {motion}, {which})", exc.path) from None
+                raise _clip_error(exc, motion, which) from None
         return 1
     progress.log(f"  simulating {workers} clips at a time, each in a process of its own")
     params = config.as_params()
@@ -379,8 +379,8 @@ def _simulate_all(
                 motion, which = running.pop(future)
                 try:
                     seconds, lines, _ = future.result()
-                except InputError as exc:  # which clip, in the one line the user sees
-                    raise InputError(f"{exc.problem} (clip {motion}, {which})", exc.path) from None
+                except InputError as exc:
+                    raise _clip_error(exc, motion, which) from None
                 for line in lines:
                     progress.log(line)
                 progress.finished(names[(motion, which)], seconds, seconds / workers)
@@ -390,6 +390,11 @@ def _simulate_all(
     for name in names.values():  # the table in the order of the stages, not of their ends
         progress.stage_times[name] = progress.stage_times.pop(name)
     return workers
+
+
+def _clip_error(exc: InputError, motion: str, which: str) -> InputError:
+    """A simulation's refusal with the clip named, in the one line the user sees."""
+    return InputError(f"{exc.problem} (clip {motion}, {which})", exc.path)
 
 
 def _two_lanes(config: PipelineConfig) -> bool:
@@ -588,7 +593,7 @@ def run_demo(
     return report
 
 
-def _joint2coarse_splits_markdown(j: dict) -> list[str]:
+def joint2coarse_splits_markdown(j: dict) -> list[str]:
     """The splits, and every model's mean / p95 vertex error (mm) per validation and test
     motion, side by side (the project's model first, then ``compare``)."""
     splits = j.get("splits")
@@ -634,7 +639,7 @@ def _schedule(cfg: dict, steps: int) -> str:
     return f"falling linearly to zero from step {round(start * steps)}"
 
 
-def _metrics_table(methods: dict) -> list[str]:
+def metrics_table(methods: dict) -> list[str]:
     """One row per method: the garment region's MSE, then the two measures that see its detail
     (GMSD, lower is better; the detail ratio, 1 is as much fine detail as the ground truth), its
     SSIM (only ours pastes the real background outside the garment), then full-frame MSE, PSNR,
@@ -653,7 +658,7 @@ def _metrics_table(methods: dict) -> list[str]:
     return lines
 
 
-def _ratio_sentence(methods: dict) -> str:
+def ratio_sentence(methods: dict) -> str:
     """Ours over DNR's MSE, garment region first, on Joint2Coarse's and the simulated proxy."""
     r = ours_to_dnr(methods)
     parts = []
@@ -717,9 +722,9 @@ def _renderer_markdown(report: dict) -> list[str]:
             "renderer and of the baselines is chosen on these figures; the test motions and the "
             "training motion's unseen cameras below are only reported. Same metrics as below.",
             "",
-            *_metrics_table(v["methods"]),
+            *metrics_table(v["methods"]),
         ]
-        ratios = _ratio_sentence(v["methods"])
+        ratios = ratio_sentence(v["methods"])
         lines += ["", ratios] if ratios else []
     lines += [
         "",
@@ -732,9 +737,9 @@ def _renderer_markdown(report: dict) -> list[str]:
         "Joint2Coarse's proxy (no simulation at test time); the rows marked simulated proxy "
         "render the simulation's (the renderers alone).",
         "",
-        *_metrics_table(ev["methods"]),
+        *metrics_table(ev["methods"]),
     ]
-    ratios = _ratio_sentence(ev["methods"])
+    ratios = ratio_sentence(ev["methods"])
     if ratios:
         lines += [
             "",
@@ -767,9 +772,9 @@ def _renderer_markdown(report: dict) -> list[str]:
             "the training never saw (`testset/" + p["motion"] + "/`): the paper's Table 1 "
             "protocol. Same metrics as above.",
             "",
-            *_metrics_table(p["methods"]),
+            *metrics_table(p["methods"]),
         ]
-        ratios = _ratio_sentence(p["methods"])
+        ratios = ratio_sentence(p["methods"])
         if ratios:
             lines += [
                 "",
@@ -930,7 +935,7 @@ def report_markdown(report: dict) -> str:
         + "; held-out frames (validation) and unseen motions."
         + _mirror_markdown(j.get("mirror")),
         "",
-        *_joint2coarse_splits_markdown(j),
+        *joint2coarse_splits_markdown(j),
         "| data | mean (mm) | p95 (mm) | max (mm) |",
         "| --- | --- | --- | --- |",
     ]

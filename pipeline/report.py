@@ -12,7 +12,7 @@ from pathlib import Path
 
 from core.errors import InputError
 from core.fileio import atomic_path
-from pipeline.demo import _joint2coarse_splits_markdown, _metrics_table, _ratio_sentence
+from pipeline.demo import joint2coarse_splits_markdown, metrics_table, ratio_sentence
 from pipeline.deviations import deviations_markdown, from_json, methods_markdown
 
 #: The page's sections, in order: ``(anchor, heading)``. The README links to these anchors; a
@@ -36,15 +36,22 @@ HEADLINE_METHODS = ("ours", "dnr", "pix2pix")
 PAPER_OURS_TO_DNR = 0.57
 
 
-def ground_truth(report: dict) -> str:
-    """How the detailed target of the project's ground truth moves, in words."""
+#: How the detailed target of a project's ground truth moves (``target_mode``): a word for the
+#: headline, and the sentence that says what it means.
+GROUND_TRUTHS = {
+    "simulate": ("simulated", "the detailed target is a cloth simulation of its own"),
+    "embed": (
+        "embedded",
+        "the detailed target is carried by the simulated proxy (its details keep their offsets "
+        "and have no motion of their own)",
+    ),
+}
+
+
+def ground_truth(report: dict) -> tuple[str, str]:
+    """``(word, sentence)``: how the project's detailed target moves (:data:`GROUND_TRUTHS`)."""
     mode = report.get("config", {}).get("target_mode", "embed")
-    if mode == "simulate":
-        return "simulated: the detailed target is a cloth simulation of its own"
-    return (
-        "embedded: the detailed target is carried by the simulated proxy (its details keep their "
-        "offsets and have no motion of their own)"
-    )
+    return GROUND_TRUTHS.get(mode, GROUND_TRUTHS["embed"])
 
 
 def _mean(summary: dict | None) -> float | None:
@@ -147,7 +154,7 @@ def _provenance_markdown(report: dict) -> list[str]:
         f"- Preset: `{report.get('preset', 'custom')}`; made by `dng demo --preset "
         f"{report.get('preset', 'custom')} --out PROJECT`, then `dng report PROJECT --results "
         "docs/results.md`.",
-        f"- Ground truth: {ground_truth(report)}.",
+        "- Ground truth: {}: {}.".format(*ground_truth(report)),
         f"- Commit: {f'`{commit}`' if commit else 'not recorded'}"
         + {
             True: ", from an empty project folder.",
@@ -171,7 +178,7 @@ def _joint2coarse_markdown(report: dict) -> list[str]:
         "clips; the other column is the paper's model trained beside it.",
         "",
     ]
-    return lines + _joint2coarse_splits_markdown(j)
+    return lines + joint2coarse_splits_markdown(j)
 
 
 def _renderer_markdown(report: dict) -> list[str]:
@@ -199,8 +206,8 @@ def _renderer_markdown(report: dict) -> list[str]:
             (f"P, the training motion `{p['motion']}` (the paper's protocol)", p["methods"])
         )
     for title, methods in blocks:
-        lines += ["", f"**{title}**", "", *_metrics_table(methods)]
-        ratio = _ratio_sentence(methods)
+        lines += ["", f"**{title}**", "", *metrics_table(methods)]
+        ratio = ratio_sentence(methods)
         if ratio:
             lines += ["", ratio]
     motions = [*([ev["validation"]["motion"]] if ev.get("validation") else []), *ev["motions"]]
@@ -348,7 +355,7 @@ def results_markdown(
     body = {
         "headline": [
             f"The `{report.get('preset', 'custom')}` preset's figures on the **test split**, "
-            f"against an **{ground_truth(report).split(':')[0]}** ground truth (below). Lower is "
+            f"against an **{ground_truth(report)[0]}** ground truth (below). Lower is "
             "better for errors, MSE, GMSD and flicker; higher for SSIM; 1 is best for the "
             "detail ratio.",
             "",

@@ -180,7 +180,7 @@ def test_template_proxy_ablation(smoke_project, tmp_path):
 
 
 def test_ours_to_dnr_gives_garment_region_and_full_frame_ratios():
-    from pipeline.demo import _metrics_table, _ratio_sentence
+    from pipeline.demo import metrics_table, ratio_sentence
     from pipeline.stages.evaluate import ours_to_dnr
 
     def method(mse, masked):
@@ -194,8 +194,8 @@ def test_ours_to_dnr_gives_garment_region_and_full_frame_ratios():
     assert r["mse_ratio_ours_to_dnr"] == pytest.approx(0.75)
     assert r["mse_masked_ratio_ours_to_dnr"] == pytest.approx(1.25)
     assert not any(k.endswith("simulated_proxy") for k in r)  # DNR did not run on it
-    text = _ratio_sentence(methods)
+    text = ratio_sentence(methods)
     assert text.index("garment-region MSE 1.25") < text.index("full-frame MSE 0.75")
-    header = _metrics_table(methods)[0]
+    header = metrics_table(methods)[0]
     assert header.index("MSE, garment") < header.index("| MSE |")  # the headline first
-    assert ours_to_dnr({"ours": methods["ours"]}) == {} and _ratio_sentence({}) == ""
+    assert ours_to_dnr({"ours": methods["ours"]}) == {} and ratio_sentence({}) == ""
