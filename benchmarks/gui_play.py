@@ -1,6 +1,6 @@
 """The studio window while playing: what reaches the screen, and whether frames queue up.
 
-Usage (needs a display; under Xvfb this measures software Vulkan)::
+Usage (needs a display; under Xvfb this measures Mesa's software OpenGL, llvmpipe)::
 
     DISPLAY=:99 python benchmarks/gui_play.py PROJECT [--seconds 20] [--view neural] [--burn]
 

@@ -1,7 +1,6 @@
 """Run a command under a time limit; past it the command has hung, and what the process was doing
 is written down: :func:`run_watched` fails the test with it, :func:`watch` returns it (for a
-caller that decides, like the GUI tour fixture, which runs a tour again when software rendering
-stalled it, up to ``TOUR_ATTEMPTS`` tours, and fails when every one stalls)."""
+caller that adds what it knows, like the GUI tour fixture, before it fails)."""
 
 from __future__ import annotations
 

@@ -17,28 +17,25 @@ from __future__ import annotations
 
 import os
 
-from app.gui.backend import DEFAULT_BACKEND, select_backend
+from app.gui.backend import hide_anisotropy, select_backend, window_backend
 
 
 def start_application():
     """Initialise Open3D's GUI application once and return it (every window entry point: the
     studio, its tour, the play benchmark).
 
-    Mesa's software Vulkan (lavapipe, what Xvfb machines have) rasterizes on its own llvmpipe
-    threads by default. Windows froze for good with those two threads spinning at 100% CPU and
-    the main thread waiting in Filament's ``SyncThreads`` (see ``tests/hang.py``'s reports).
-    ``LP_NUM_THREADS=0`` makes it rasterize on the submitting thread: there are no such threads,
-    and a tour on 2 cores ran as fast (35-37 s against 42 s; live neural images shown 11.0/s
-    against 10.0/s). It does not remove the freeze: one tour in about six still froze with it,
-    the submitting thread spinning in llvmpipe's generated code (no symbols; -inf floats on its
-    stack) and the main thread again in ``SyncThreads``. The cause is not known. Hardware
-    drivers ignore the variable, and a user's own setting wins. It is read when the Vulkan
-    device is made, so it is set before ``initialize``.
+    The backend is :func:`app.gui.backend.window_backend`'s. Mesa's environment is set before
+    ``initialize``, where it is read; a user's own setting wins, and hardware drivers ignore it:
+    - anisotropic filtering hidden (:func:`app.gui.backend.hide_anisotropy`): with it, llvmpipe
+      froze the window whenever a sliver of the garment was drawn edge-on;
+    - ``LP_NUM_THREADS=0``: llvmpipe rasterizes on the submitting thread instead of two threads
+      of its own (a tour on 2 cores ran as fast: 35-37 s against 42 s).
     """
     os.environ.setdefault("LP_NUM_THREADS", "0")
+    hide_anisotropy()
     import open3d.visualization.gui as gui
 
-    select_backend(os.environ.get("DNG_GUI_BACKEND", DEFAULT_BACKEND))
+    select_backend(window_backend())
     app = gui.Application.instance
     app.initialize()
     return app

@@ -9,10 +9,17 @@ from pathlib import Path
 
 from core.errors import InputError
 
-#: Filament's backend for the window (``DNG_GUI_BACKEND`` overrides it): ``vulkan`` or ``opengl``.
-#: Under software rendering both stall now and then in Mesa's rasterizer (docs/gui.md, 5 of 8
-#: loaded tours on Vulkan, 3 of 8 on OpenGL): no reason to leave Open3D's own choice.
+#: Filament's backend for the window with a GPU driver (``DNG_GUI_BACKEND`` overrides it).
 DEFAULT_BACKEND = "vulkan"
+#: ... and under software rendering: OpenGL, the one backend where Mesa's anisotropic texture
+#: filtering can be switched off (:data:`NO_ANISOTROPY`).
+SOFTWARE_BACKEND = "opengl"
+#: Mesa's ``MESA_EXTENSION_OVERRIDE`` entries that hide anisotropic filtering from Filament.
+#: Open3D samples every lit material's maps with 8x anisotropy, and llvmpipe's anisotropic
+#: filter loops over every texel of a pixel's footprint: a sliver seen edge-on has a footprint
+#: of millions of texels, and the window froze for minutes or for good (docs/gui.md, "The
+#: software-rendering stall"). Vulkan (lavapipe) has no switch for it.
+NO_ANISOTROPY = ("-GL_EXT_texture_filter_anisotropic", "-GL_ARB_texture_filter_anisotropic")
 #: Open3D's ``rendering::RenderingType`` values (``FilamentEngine.h``: kDefault, kOpenGL,
 #: kVulkan, kMetal).
 _RENDERING_TYPES = {"default": 0, "opengl": 1, "vulkan": 2}
@@ -53,6 +60,25 @@ def select_backend(name: str) -> None:
 
 #: The backend :func:`select_backend` chose last (``default`` until it runs: Open3D's choice).
 _SELECTED = {"backend": "default"}
+
+
+def window_backend() -> str:
+    """The backend a window opens on: ``DNG_GUI_BACKEND`` when set, else
+    :data:`SOFTWARE_BACKEND` under software rendering and :data:`DEFAULT_BACKEND` with a GPU."""
+    forced = os.environ.get("DNG_GUI_BACKEND")
+    if forced:
+        return forced
+    return SOFTWARE_BACKEND if software_rendering() else DEFAULT_BACKEND
+
+
+def hide_anisotropy(environ=os.environ) -> None:
+    """Add :data:`NO_ANISOTROPY` to ``MESA_EXTENSION_OVERRIDE`` (keeping what a user set there);
+    Mesa reads it when the first OpenGL context is made, so call it before the window opens.
+    Hardware drivers other than Mesa's ignore it; on a Mesa GPU driver it only costs texture
+    sharpness at grazing angles."""
+    entries = environ.get("MESA_EXTENSION_OVERRIDE", "").split()
+    entries += [e for e in NO_ANISOTROPY if e not in entries and "+" + e[1:] not in entries]
+    environ["MESA_EXTENSION_OVERRIDE"] = " ".join(entries)
 
 
 def software_rendering() -> bool:

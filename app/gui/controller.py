@@ -49,7 +49,6 @@ from pathlib import Path
 import open3d.visualization.gui as gui
 from PIL import ImageGrab
 
-from app.gui.backend import software_rendering
 from app.gui.model import Cancelled, GuiSettings, process_age
 from app.gui.model import save_settings as write_settings
 from app.gui.player import LIVE_REDRAW_HZ, PLAY_REDRAW_HZ, Player
@@ -81,7 +80,6 @@ class Studio:
         self._needs_redraw = True
         self._last_redraw = 0.0
         self.redraws = 0  # window redraws asked for by :meth:`service` (tests read it)
-        self._software = software_rendering()
         self.errors: list[str] = []  # every error shown (tests read it)
         self.open_seconds: float | None = None
         # the parts (the view's widgets call them, so they exist before it)
@@ -158,11 +156,6 @@ class Studio:
         # every frame it is asked for, and a software 3D frame costs 0.1-0.6 s); one that only
         # changes widgets and images, at LIVE_REDRAW_HZ.
         scene_frame = self.view.scene_dirty and self.player.main_view() == "scene"
-        if self._software and self.player.main_view() == "scene":
-            # Under software rendering a 3D frame can freeze llvmpipe for minutes (docs/gui.md,
-            # "Software rendering"): while the 3D view is shown, the window is drawn on input
-            # and for screenshots only, as before; the neural view redraws by itself.
-            return
         hz = PLAY_REDRAW_HZ if scene_frame else LIVE_REDRAW_HZ
         if self._needs_redraw and now - self._last_redraw >= 1.0 / hz:
             self._needs_redraw = False

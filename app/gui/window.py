@@ -22,7 +22,7 @@ import open3d as o3d
 import open3d.visualization.gui as gui
 import open3d.visualization.rendering as rendering
 
-from app.gui.backend import selected_backend, software_rendering
+from app.gui.backend import selected_backend
 from app.gui.model import (
     DETAIL_SCALE_RANGE,
     PLAY_SPEEDS,
@@ -104,11 +104,9 @@ class StudioWindow:
         self.scene.scene.set_lighting(
             rendering.Open3DScene.LightingProfile.NO_SHADOWS, (0.3, -0.8, -0.5)
         )
-        # Scene caching (GPU drivers only): a window redraw re-renders the 3D view only after
-        # :meth:`scene_changed`, so a redraw for a label or an image costs no 3D frame. Under
-        # software rendering the tour stalled more often with it (docs/gui.md), and the studio
-        # draws no 3D frame by itself there anyway.
-        self.scene.enable_scene_caching(not software_rendering())
+        # Scene caching: a window redraw re-renders the 3D view only after :meth:`scene_changed`,
+        # so a redraw for a label or an image costs no 3D frame.
+        self.scene.enable_scene_caching(True)
         #: The 3D view changed since the last :meth:`redraw` (the studio paces such redraws).
         self.scene_dirty = True
         w.add_child(self.scene)
