@@ -26,8 +26,8 @@ def clip(kind: str, seed: int = 0, frames: int = 300, fps: float = 30.0):
     return m, pos.astype(np.float64), rot.astype(np.float64)
 
 
-def feet(kind: str, seed: int = 0):
-    m, pos, rot = clip(kind, seed)
+def feet(kind: str, seed: int = 0, frames: int = 300):
+    m, pos, rot = clip(kind, seed, frames)
     return foot_points(m.skeleton, pos, rot)  # (T, 2, 3, 3): ankle, heel, toe
 
 
@@ -160,7 +160,120 @@ def test_run_flies_between_steps():
     assert root[flying, 1].mean() > root[~flying, 1].mean() + 0.01
 
 
-@pytest.mark.parametrize("kind", ("walk", "circle-walk", "run"))
+#: Kinds made of key poses, with the body standing still between movements.
+SCRIPTED = ("squat", "kick", "kneel")
+
+
+def longest_run(mask: np.ndarray) -> int:
+    """Length of the longest run of True in a 1-D boolean array."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(int), 0]))
+    return int(np.max(edges[1::2] - edges[::2], initial=0))
+
+
+@pytest.mark.parametrize("kind", SCRIPTED)
+def test_scripted_kinds_start_standing_and_stand_still_between_movements(kind):
+    """A foot is always on the floor; the clip starts standing (feet flat under the hips, the
+    root within 5 cm of its rest height, not moving); between two movements (a squat, a kick,
+    a knee down) the whole body stands still at least 1 s."""
+    m, pos, _ = clip(kind, frames=600)
+    i = m.skeleton.index
+    f = feet(kind, frames=600)
+    low = f[..., 1].min(2)  # (T, 2) lowest point per foot
+    assert (low.min(1) < CONTACT).all(), "both feet in the air"
+    assert (f[0, :, 1:, 1] < CONTACT).all(), "not standing flat at the start"
+    hips = np.linalg.norm(pos[0, i("LeftUpLeg"), [0, 2]] - pos[0, i("RightUpLeg"), [0, 2]])
+    apart = np.linalg.norm(f[0, 0, 0, [0, 2]] - f[0, 1, 0, [0, 2]])
+    assert hips - 0.01 < apart < hips + 0.08, (apart, hips)
+    assert abs(pos[0, 0, 1] - m.skeleton.rest_positions()[0, 1]) < 0.05
+    speed = np.linalg.norm(np.diff(pos, axis=0), axis=-1).max(1) * m.fps  # fastest joint, m/s
+    assert speed[:5].max() < 1e-3
+    if kind == "squat":
+        event = pos[:, 0, 1] < pos[0, 0, 1] - 0.3
+    elif kind == "kick":
+        event = low.max(1) > 0.5
+    else:
+        event = pos[:, [i("LeftLeg"), i("RightLeg")], 1].min(1) < 0.1
+    edges = np.flatnonzero(np.diff(np.r_[0, event.astype(int), 0]))
+    assert len(edges) >= 4, "fewer than two movements in 20 s"
+    for a, b in zip(edges[1:-1:2], edges[2::2]):  # from the end of one to the next's start
+        still = longest_run(speed[a:b] < 1e-3) / m.fps
+        assert still >= 0.95, f"stands still only {still:.2f} s between movements"
+
+
+def test_squat_goes_deep_with_the_feet_wide_and_stands_back_up():
+    """The root drops at least 0.35 m below its standing height (0.40 to 0.45 m for a 1.70 m
+    body); after each squat it comes back within 2 cm of where it stood before it (with the
+    feet wide, a few cm below its height with the feet together), and after the feet step back
+    in, within 2 cm of its height at the start. While squatting the ankles are 0.6 to 0.8 m
+    apart (more than the hips' width) and the knees are out, about over the feet."""
+    m, pos, _ = clip("squat", frames=600)
+    i = m.skeleton.index
+    y = pos[:, 0, 1]
+    assert y[0] - y.min() > 0.35, y[0] - y.min()
+    assert y.max() < y[0] + 0.02
+    speed = np.linalg.norm(np.diff(pos, axis=0), axis=-1).max(1) * m.fps
+    still = np.flatnonzero(np.r_[speed < 1e-3, False])
+    deep = y < y[0] - 0.3
+    edges = np.flatnonzero(np.diff(np.r_[0, deep.astype(int), 0]))
+    assert len(edges) >= 4
+    for a, b in zip(edges[::2], edges[1::2]):
+        if not (still > b).any():
+            continue  # the clip ends before the body stands still again
+        before, after = still[still < a][-1], still[still > b][0]
+        assert abs(y[after] - y[before]) < 0.02, (y[before], y[after])
+    assert y[edges[0] :].max() > y[0] - 0.02  # the feet stepped back in
+    ankles = pos[:, [i("LeftFoot"), i("RightFoot")]][..., [0, 2]]
+    knees = pos[:, [i("LeftLeg"), i("RightLeg")]][..., [0, 2]]
+    hips = pos[:, [i("LeftUpLeg"), i("RightUpLeg")]][..., [0, 2]]
+    apart = np.linalg.norm(ankles[:, 0] - ankles[:, 1], axis=-1)[deep]
+    assert ((apart > 0.6) & (apart < 0.8)).all(), apart
+    assert (apart > np.linalg.norm(hips[deep, 0] - hips[deep, 1], axis=-1)).all()
+    knees_apart = np.linalg.norm(knees[:, 0] - knees[:, 1], axis=-1)[deep]
+    assert (knees_apart > 0.75 * apart).all()
+
+
+def test_kick_reaches_hip_height_on_a_standing_foot_that_stays_put():
+    """A kicking foot rises to 0.8 m or more (the default body's hips are at 0.85 m) and lands
+    where it took off; the standing foot stays flat and does not move; legs take turns."""
+    f = feet("kick", frames=600)
+    kicked = set()
+    for foot in range(2):
+        flat = np.flatnonzero((f[:, foot, 1:, 1] < CONTACT).all(1))
+        up = f[:, foot, :, 1].min(1) > 0.05
+        edges = np.flatnonzero(np.diff(np.r_[0, up.astype(int), 0]))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if not (flat >= b).any():
+                continue  # the clip ends before the foot is down again
+            kicked.add(foot)
+            assert f[a:b, foot, :, 1].max() >= 0.8, f[a:b, foot, :, 1].max()
+            off, on = flat[flat < a][-1], flat[flat >= b][0]  # last and first flat frames
+            land = np.linalg.norm(f[on, foot, 0, [0, 2]] - f[off, foot, 0, [0, 2]])
+            assert land < 0.01, land
+            other = f[off : on + 1, 1 - foot]
+            assert (other[:, 1:, 1] < CONTACT).all(), "the standing foot lifts"
+            slide = np.linalg.norm(other[:, 0, [0, 2]] - other[0, 0, [0, 2]], axis=-1).max()
+            assert slide < 1e-3, slide
+    assert kicked == {0, 1}
+
+
+def test_kneel_puts_a_knee_on_the_floor_and_stands_back_up():
+    """A knee joint comes within 5 cm of the floor (the knee's radius is 5.1 cm), the front
+    thigh near level; the root comes back to its standing height; sides take turns."""
+    m, pos, _ = clip("kneel", frames=600)
+    i = m.skeleton.index
+    knees = pos[:, [i("LeftLeg"), i("RightLeg")], 1]
+    hips = pos[:, [i("LeftUpLeg"), i("RightUpLeg")], 1]
+    down = knees.min(0)
+    assert (down < 0.05).all(), down  # both knees, one after the other
+    t = int(np.argmin(knees[:, 0]))
+    assert abs(knees[t, 1] - hips[t, 1]) < 0.12  # the front thigh about level (within 20 deg)
+    y = pos[:, 0, 1]
+    assert y[0] - y.min() > 0.3
+    first_up = t + int(np.argmax(y[t:] > y[0] - 0.02))
+    assert first_up > t and abs(y[first_up:].max() - y[0]) < 0.02
+
+
+@pytest.mark.parametrize("kind", ("walk", "circle-walk", "run", *SCRIPTED))
 def test_walk_stance_feet_do_not_slide(kind):
     """A heel or toe touching the floor stays where it touched down (within 2 cm)."""
     f = feet(kind)

@@ -1,5 +1,5 @@
 """Procedural clips on the mannequin: dance, twirl, walk, circle-walk, idle, jump, broad-jump,
-run.
+run, squat, kick, kneel.
 
 Every clip is a function of time in seconds, evaluated at the frame times, so the same seed
 describes the same motion at any frame rate and any clip length (a longer clip extends a shorter
@@ -17,6 +17,9 @@ order. The pieces:
   forwards, by construction.
 - **Spine, neck, arms** are joint angles driven by smooth signals (sums of sines with seeded
   frequencies and phases) squashed into joint ranges with ``tanh``: bounded and C-infinity.
+- ``squat``, ``kick`` and ``kneel`` are scripted instead: seeded key poses (:class:`_Script`),
+  each eased into the next (quintic: C2, at rest at every key), with the body standing still
+  at least a second between movements.
 
 All signals are at least C1 (the root's vertical path in a jump is a C1 Hermite spline joined to
 a ballistic flight), so joint velocities never jump.
@@ -43,7 +46,8 @@ from core.skeleton import Skeleton
 
 #: The kinds :func:`make_motion` knows.
 PROCEDURAL_KINDS: tuple[str, ...] = (
-    "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump", "run",
+    "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump", "run", "squat", "kick",
+    "kneel",
 )  # fmt: skip
 
 _X, _Y, _Z = np.eye(3)
@@ -159,6 +163,8 @@ class _Plan:
     spine : (T, 3) forward bend, side bend, twist over the three spine joints together
     neck : (T, 3) the same for neck + head
     arms : (T, 2, 5) per side: clavicle raise, abduction, forward flexion, twist, elbow flexion
+    knees : (T, 2, 3) or None: the direction each knee points to (its leg bends towards it);
+        None: the foot's heading plus the pelvis's forward direction
     """
 
     root_xz: np.ndarray
@@ -172,6 +178,7 @@ class _Plan:
     spine: np.ndarray
     neck: np.ndarray
     arms: np.ndarray
+    knees: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -774,6 +781,339 @@ def _plan_jump(t: np.ndarray, rng: Streams, body: _Body, kind: str = "jump") -> 
     )  # fmt: skip
 
 
+# --------------------------------------------------------------------------------------------
+# Scripted clips (squat, kick, kneel): key poses, each eased into the next.
+
+
+class _Script:
+    """Key poses in time order, each eased into the next with :func:`_quintic` (C2, the body at
+    rest at every key); before the first key and after the last the pose holds.
+
+    A pose maps names to arrays in the clip's body frame (x to the body's left, z forward;
+    lengths in metres, angles in degrees), per foot in the order left, right:
+
+    root : (2,) floor position (x, z) of the root; drop : () root below its rest height
+    pitch, roll : () pelvis (pitch > 0 tips forward, roll > 0 to the right)
+    hold : (2, 2) floor position (x, z) of each ankle with its foot laid flat
+    toe : (2,) each foot's pitch about its toe tip (> 0: heel up; the toe tip stays put)
+    foot_yaw : (2,) each foot's turn from the heading (> 0: to the left); knee_out : (2,) each
+        knee's turn beyond its foot's (the same sense)
+    lift : (2,) each ankle's lift; swing : (2,) a kick's leg angle (the knee points up by as
+        much), bend : (2,) its knee's bend (:func:`_plan_kick`)
+    spine, neck : (3,) bend forward, bend to the left, twist; arms : (2, 5) as in :class:`_Plan`
+
+    ``bump`` values are added on one segment as :func:`_bump` (0 and at rest at both of its
+    keys, the whole value half-way): a foot's lift, a weight shift during a step, a knee bent
+    as the leg swings.
+    """
+
+    def __init__(self, t0: float, pose: dict[str, np.ndarray]):
+        self.times = [float(t0)]
+        self.poses = [{k: np.array(v, np.float64) for k, v in pose.items()}]
+        self.bumps: list[dict[str, np.ndarray]] = []
+
+    @property
+    def end(self) -> float:
+        """Time of the last key (s)."""
+        return self.times[-1]
+
+    @property
+    def pose(self) -> dict[str, np.ndarray]:
+        """A copy of the last key pose."""
+        return {k: v.copy() for k, v in self.poses[-1].items()}
+
+    def to(self, dt: float, bump: dict | None = None, **changes) -> None:
+        """A key ``dt`` seconds (> 0) after the last: the last pose with ``changes``."""
+        pose = self.pose
+        pose.update({k: np.array(v, np.float64) for k, v in changes.items()})  # copies
+        self.times.append(self.times[-1] + dt)
+        self.poses.append(pose)
+        self.bumps.append({k: np.array(v, np.float64) for k, v in (bump or {}).items()})
+
+    def wait(self, dt: float) -> None:
+        """Stand still for ``dt`` seconds."""
+        self.to(dt)
+
+    def sample(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """The pose at times ``t`` (T,): each name's array with a leading axis T."""
+        times = np.array(self.times)
+        i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+        u = np.clip((t - times[i]) / (times[i + 1] - times[i]), 0.0, 1.0)
+        ease, bump = _quintic(u), _bump(u)
+        out = {}
+        for name in self.poses[0]:
+            v = np.stack([p[name] for p in self.poses])
+            b = np.stack([q.get(name, np.zeros_like(v[0])) for q in self.bumps])
+            shape = (-1,) + (1,) * (v.ndim - 1)
+            out[name] = v[i] + ease.reshape(shape) * (v[i + 1] - v[i]) + bump.reshape(shape) * b[i]
+        return out
+
+
+def _toe_pivot(body: _Body, angle: np.ndarray) -> np.ndarray:
+    """Ankle displacement (foot frame, (..., 3)) when a flat foot pivots about its toe tip by
+    ``angle`` (radians (...,), > 0: heel up): the toe tip stays where it was."""
+    toe = body.skel.end_sites[body.skel.index("LeftFoot")].astype(np.float64)
+    return toe - rotation_about_axes(_X, angle) @ toe
+
+
+def _standing(r: np.random.Generator, body: _Body) -> dict[str, np.ndarray]:
+    """A relaxed standing key pose of :class:`_Script` (feet under the hips, arms hanging)."""
+    scale = body.height / 1.70
+    w = body.hip_half + r.uniform(0.0, 0.03) * scale
+    arm = [r.uniform(0, 3), r.uniform(-28, -18), r.uniform(0, 10), 0.0, r.uniform(10, 25)]
+    zeros = np.zeros(2)
+    return {
+        "root": zeros, "drop": r.uniform(0.01, 0.02) * scale, "pitch": 0.0, "roll": 0.0,
+        "hold": np.array([[w, 0.0], [-w, 0.0]]), "toe": zeros, "foot_yaw": zeros,
+        "knee_out": zeros, "lift": zeros, "swing": zeros, "bend": zeros, "spine": np.zeros(3),
+        "neck": np.zeros(3), "arms": np.array([arm, arm]),
+    }  # fmt: skip
+
+
+def _scripted(
+    pose: dict[str, np.ndarray], psi0: float, c0: np.ndarray, body: _Body
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World root (T, 3), pelvis orientation (T, 3, 3) and ankle targets (T, 2, 3) of sampled key
+    poses (:meth:`_Script.sample`) of a body facing ``psi0`` about the floor point ``c0`` (2,)."""
+    turn = _yaw(np.array([psi0]))[0]
+    n = len(pose["drop"])
+    root = _to3(c0) + _to3(pose["root"]) @ turn.T
+    root[:, 1] = body.root_y - pose["drop"]
+    g_root = _euler_yxz(np.full(n, psi0), pose["pitch"] * _DEG, pose["roll"] * _DEG)
+    ankles = _to3(c0) + _to3(pose["hold"]) @ turn.T
+    ankles[..., 1] = body.ankle_y + pose["lift"]
+    foot = _yaw(psi0 + pose["foot_yaw"] * _DEG)
+    ankles += np.einsum("tfab,tfb->tfa", foot, _toe_pivot(body, pose["toe"] * _DEG))
+    return root, g_root, ankles
+
+
+def _scripted_plan(
+    pose: dict[str, np.ndarray],
+    psi0: float,
+    c0: np.ndarray,
+    body: _Body,
+    ankles: np.ndarray | None = None,
+) -> _Plan:
+    """The :class:`_Plan` of sampled key poses (``ankles`` (T, 2, 3) replaces their ankles).
+    A knee points where :func:`_assemble` points it by default (its foot's heading plus the
+    pelvis's forward), the heading turned by ``knee_out`` and raised by ``swing``."""
+    root, g_root, own = _scripted(pose, psi0, c0, body)
+    raise_ = pose["swing"][..., None] * _DEG
+    ahead = _heading(psi0 + (pose["foot_yaw"] + pose["knee_out"]) * _DEG)
+    knees = np.cos(raise_) * ahead + np.sin(raise_) * _Y + (g_root @ _Z)[:, None]
+    return _Plan(
+        root_xz=root[:, [0, 2]], root_y=root[:, 1], yaw=np.full(len(root), psi0),
+        pitch=pose["pitch"] * _DEG, roll=pose["roll"] * _DEG,
+        ankles=own if ankles is None else ankles, foot_yaw=psi0 + pose["foot_yaw"] * _DEG,
+        foot_pitch=pose["toe"] * _DEG, spine=pose["spine"] * _DEG, neck=pose["neck"] * _DEG,
+        arms=pose["arms"] * _DEG, knees=knees,
+    )  # fmt: skip
+
+
+#: Scripted kinds: seconds standing still at the start, and before each movement after the
+#: first (at least 1 s, so that a skirt has time to fall back).
+_LEAD = (0.3, 0.8)
+_STILL = (1.0, 1.8)
+
+
+def _plan_squat(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
+    """Deep wide-legged squats: step out to the ankles 0.6 to 0.8 m apart, toes turned out 30
+    to 40 degrees; one to three squats (the root 0.40 to 0.45 m below its height with the feet
+    together, the thighs about level, sitting back, the torso leaning, arms forward, the knees
+    out towards the toes; held), each followed by standing up and standing still; step back in.
+    Lengths for a 1.70 m body."""
+    r0 = rng(0)
+    scale = body.height / 1.70
+    psi0 = r0.uniform(-np.pi, np.pi)
+    c0 = r0.uniform(-0.3, 0.3, 2)
+    rest = _standing(r0, body)
+    s = _Script(0.0, rest)
+    s.wait(r0.uniform(*_LEAD))
+    rs = rng(1)
+
+    def step(f: int, x: float, yaw: float) -> None:
+        """Foot ``f`` steps sideways to ``x``, turned out by ``yaw``; the hips lean over the
+        other."""
+        sx = 1.0 - 2.0 * f
+        hold, foot_yaw, lift = s.pose["hold"], s.pose["foot_yaw"], np.zeros(2)
+        hold[f, 0], foot_yaw[f], lift[f] = x, yaw, rs.uniform(0.04, 0.07) * scale
+        shift = np.array([-sx * rs.uniform(0.02, 0.04) * scale, 0.0])
+        s.to(rs.uniform(0.45, 0.6), {"lift": lift, "root": shift}, hold=hold, foot_yaw=foot_yaw)
+
+    while s.end < t[-1] + _MARGIN:
+        half = rs.uniform(0.3, 0.4) * scale  # half the distance between the ankles
+        out = rs.uniform(30, 40)
+        lead = int(rs.integers(2))
+        for f in (lead, 1 - lead):
+            step(f, (1.0 - 2.0 * f) * half, (1.0 - 2.0 * f) * out)
+        s.wait(rs.uniform(0.2, 0.4))
+        wide = s.pose
+        for _ in range(int(rs.integers(1, 4))):
+            lean = rs.uniform(0, 5)
+            arm = [rs.uniform(3, 8), rs.uniform(-35, -25), rs.uniform(70, 90), 0.0,
+                   rs.uniform(10, 35)]  # fmt: skip
+            knee_out = rs.uniform(45, 55)
+            s.to(
+                rs.uniform(0.9, 1.4), drop=wide["drop"] + rs.uniform(0.40, 0.45) * scale,
+                root=[0.0, -rs.uniform(0.08, 0.14) * scale], pitch=lean,
+                knee_out=[knee_out, -knee_out], spine=[rs.uniform(10, 25), 0.0, 0.0],
+                neck=[-rs.uniform(5, 20), 0.0, 0.0], arms=[arm, arm],
+            )  # fmt: skip
+            s.wait(rs.uniform(0.3, 0.8))
+            s.to(rs.uniform(0.9, 1.4), **wide)
+            s.wait(rs.uniform(*_STILL))
+        for f in (1 - lead, lead):
+            step(f, rest["hold"][f, 0], 0.0)
+        s.wait(rs.uniform(*_STILL))
+    return _scripted_plan(s.sample(t), psi0, c0, body)
+
+
+def _plan_kick(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
+    """High front kicks, legs taking turns: the hips shift over the standing foot, the other leg
+    swings up in front, the knee bent on the way and nearly straight at the top (the line hip
+    to ankle 86 to 98 degrees from straight down, the pelvis leaning back 15 to 22 degrees, the
+    foot pointed), comes back down to where it stood; arms out for balance, the arm opposite
+    the kicking leg forward. The body then stands still."""
+    r0 = rng(0)
+    scale = body.height / 1.70
+    psi0 = r0.uniform(-np.pi, np.pi)
+    c0 = r0.uniform(-0.3, 0.3, 2)
+    rest = _standing(r0, body)
+    s = _Script(0.0, rest)
+    s.wait(r0.uniform(*_LEAD))
+    rk = rng(1)
+    f = int(rk.integers(2))  # the first kicking leg
+    # (lift-off, touch-down, leg, swing at the top (deg), hip to ankle at the top (m), how far
+    # the ankle comes in under the hip (fraction))
+    moves = []
+    while s.end < t[-1] + _MARGIN:
+        sx = 1.0 - 2.0 * f  # the kicking leg's side
+        shifted = s.pose
+        shifted["root"] = [rk.uniform(0.75, 0.95) * rest["hold"][1 - f, 0], 0.0]  # over it
+        shifted["drop"] = rest["drop"] + rk.uniform(0.01, 0.02) * scale
+        front = [rk.uniform(3, 8), rk.uniform(5, 30), rk.uniform(30, 60), 0.0, rk.uniform(30, 60)]
+        back = [rk.uniform(3, 8), rk.uniform(15, 40), rk.uniform(-25, 0), 0.0, rk.uniform(15, 40)]
+        shifted["arms"] = np.array([back, front] if f == 0 else [front, back])
+        s.to(rk.uniform(0.35, 0.5), **shifted)
+        t_off = s.end
+        top = s.pose
+        swing = rk.uniform(86, 98)
+        lean = rk.uniform(15, 22)
+        top["swing"][f] = swing
+        top["toe"][f] = rk.uniform(20, 40) - swing  # pointed, on a leg up in front
+        top["pitch"] = -lean
+        top["drop"] += rk.uniform(0.01, 0.03) * scale
+        top["spine"] = [lean * rk.uniform(0.6, 1.0), 0.0, -sx * rk.uniform(0, 10)]
+        top["neck"] = [rk.uniform(0, 10), 0.0, 0.0]
+        top["arms"][:, 1] += rk.uniform(5, 15)
+        bend = np.zeros(2)
+        bend[f] = -rk.uniform(0.06, 0.12) * scale
+        s.to(rk.uniform(0.3, 0.45), {"bend": bend}, **top)
+        s.wait(rk.uniform(0.05, 0.2))
+        bend[f] = -rk.uniform(0.04, 0.1) * scale
+        s.to(rk.uniform(0.4, 0.6), {"bend": bend}, **shifted)
+        moves.append((t_off, s.end, f, swing, rk.uniform(0.93, 0.96) * body.leg,
+                      rk.uniform(0.5, 1.0)))  # fmt: skip
+        s.to(rk.uniform(0.35, 0.5), **rest)
+        s.wait(rk.uniform(*_STILL))
+        f = 1 - f
+    pose = s.sample(t)
+    root, g_root, ankles = _scripted(pose, psi0, c0, body)
+    i = body.skel.index
+    hip_offsets = body.skel.offsets[[i("LeftUpLeg"), i("RightUpLeg")]].astype(np.float64)
+    hips = root[:, None] + np.einsum("tab,kb->tka", g_root, hip_offsets)
+    turn = _yaw(np.array([psi0]))[0]
+    swing = pose["swing"] * _DEG
+    for t0, t1, f, top, reach, inward in moves:
+        during = (t >= t0) & (t <= t1)
+        if not during.any():
+            continue
+        # The ankle in polar coordinates about the moving hip, in the leg's sagittal plane,
+        # starting (and ending) where it stood: the leg's angle grows by ``swing``, its length
+        # goes to ``reach`` less the knee's bend, the ankle comes in front of the hip.
+        root0, g0, ankles0 = _scripted(s.sample(np.array([t0])), psi0, c0, body)
+        x, y, z = turn.T @ (ankles0[0, f] - root0[0] - g0[0] @ hip_offsets[f])
+        r0, angle0 = np.hypot(y, z), np.arctan2(z, -y)
+        k = swing[during, f] / (top * _DEG)
+        r = r0 + (reach - r0) * k + pose["bend"][during, f]
+        angle = angle0 + swing[during, f]
+        local = np.stack([x * (1.0 - inward * k), -r * np.cos(angle), r * np.sin(angle)], -1)
+        ankles[during, f] = hips[during, f] + local @ turn.T
+    return _scripted_plan(pose, psi0, c0, body, ankles)
+
+
+def _plan_kneel(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
+    """Going down on one knee and back up, sides taking turns: one foot steps back onto its
+    toes (a lunge), the body goes down until that knee rests on the floor (the knee joint
+    0.025 to 0.028 body heights up; the knee's radius is 0.03) with the thigh nearly upright, the
+    front thigh about level and the back foot's heel up (toes tucked under); held; back up
+    to the lunge, and the foot steps back beside the other. The body then stands still."""
+    r0 = rng(0)
+    scale = body.height / 1.70
+    psi0 = r0.uniform(-np.pi, np.pi)
+    c0 = r0.uniform(-0.3, 0.3, 2)
+    rest = _standing(r0, body)
+    s = _Script(0.0, rest)
+    s.wait(r0.uniform(*_LEAD))
+    rk = rng(1)
+    skel, i = body.skel, body.skel.index
+    thigh = float(np.linalg.norm(skel.offsets[i("LeftLeg")]))
+    shin = float(np.linalg.norm(skel.offsets[i("LeftFoot")]))
+    side = ("Left", "Right")
+    k = int(rk.integers(2))  # the first kneeling leg
+    while s.end < t[-1] + _MARGIN:
+        # The kneeling pose, from the front foot (it stays) and the floor up: the root behind
+        # the front ankle, the back knee on the floor below the back hip (the thigh leaning
+        # back), the back shin rising from the knee to the ankle of the foot on its toes.
+        pitch = rk.uniform(0, 6)
+        g = _euler_yxz(np.zeros(1), np.array([pitch * _DEG]), np.zeros(1))[0]
+        off_back = g @ skel.offsets[i(f"{side[k]}UpLeg")].astype(np.float64)
+        off_front = g @ skel.offsets[i(f"{side[1 - k]}UpLeg")].astype(np.float64)
+        root_z = rest["hold"][1 - k, 1] - rk.uniform(0.25, 0.33) * scale - off_front[2]
+        knee_y = rk.uniform(0.025, 0.028) * body.height
+        thigh_angle = rk.uniform(3, 12) * _DEG
+        knee_z = root_z + off_back[2] - thigh * np.sin(thigh_angle)
+        root_y = knee_y + thigh * np.cos(thigh_angle) - off_back[1]
+        toes_down = rk.uniform(75, 88)
+        ankle = np.array([0.0, body.ankle_y, 0.0]) + _toe_pivot(body, toes_down * _DEG)
+        ankle_z = knee_z - np.sqrt(shin**2 - (ankle[1] - knee_y) ** 2)
+        hold = s.pose["hold"]
+        hold[k] = [off_back[0], ankle_z - ankle[2]]
+        # The lunge: the back foot just down on its toes, the root lowered as far as the back
+        # leg needs (its ankle 0.92 of a leg from its hip).
+        toes_land = rk.uniform(55, 70)
+        lunge_z = rk.uniform(0.9, 1.0) * root_z
+        land = np.array([0.0, body.ankle_y, hold[k, 1]]) + _toe_pivot(body, toes_land * _DEG)
+        dz = lunge_z + off_back[2] - land[2]
+        high = land[1] + np.sqrt(max((0.92 * body.leg) ** 2 - dz**2, 0.0)) - off_back[1]
+        lunge_drop = max(rest["drop"], body.root_y - high)
+        toe = np.zeros(2)
+        toe[k] = toes_land
+        arm = [rk.uniform(2, 6), rk.uniform(-15, 0), rk.uniform(10, 30), 0.0, rk.uniform(20, 40)]
+        lunge = dict(
+            root=[0.0, lunge_z], drop=lunge_drop, pitch=0.5 * pitch, hold=hold, toe=toe,
+            spine=[rk.uniform(5, 10), 0.0, 0.0], arms=[arm, arm],
+        )  # fmt: skip
+        lift = np.zeros(2)
+        lift[k] = rk.uniform(0.05, 0.08) * scale
+        s.to(rk.uniform(0.7, 0.9), {"lift": lift}, **lunge)
+        toe = toe.copy()
+        toe[k] = toes_down
+        arm = [rk.uniform(2, 6), rk.uniform(-30, -20), rk.uniform(20, 45), 0.0, rk.uniform(30, 70)]
+        s.to(
+            rk.uniform(1.0, 1.5), root=[0.0, root_z], drop=body.root_y - root_y, pitch=pitch,
+            toe=toe, spine=[rk.uniform(0, 10), 0.0, 0.0], neck=[rk.uniform(-5, 5), 0.0, 0.0],
+            arms=[arm, arm],
+        )  # fmt: skip
+        s.wait(rk.uniform(0.8, 1.6))
+        s.to(rk.uniform(0.9, 1.4), **lunge)
+        lift[k] = rk.uniform(0.05, 0.08) * scale
+        s.to(rk.uniform(0.7, 0.9), {"lift": lift}, **rest)
+        s.wait(rk.uniform(*_STILL))
+        k = 1 - k
+    return _scripted_plan(s.sample(t), psi0, c0, body)
+
+
 _PLANNERS = {
     "dance": _plan_dance,
     "twirl": _plan_twirl,
@@ -783,6 +1123,9 @@ _PLANNERS = {
     "jump": _plan_jump,
     "broad-jump": lambda t, rng, body: _plan_jump(t, rng, body, "broad-jump"),
     "run": lambda t, rng, body: _plan_walk(t, rng, body, circle=False, gait=_RUN),
+    "squat": _plan_squat,
+    "kick": _plan_kick,
+    "kneel": _plan_kneel,
 }
 assert tuple(_PLANNERS) == PROCEDURAL_KINDS
 
@@ -851,7 +1194,10 @@ def _assemble(plan: _Plan, body: _Body, fps: float, name: str, meta: dict) -> Mo
         dist = np.linalg.norm(to_ankle, axis=-1)
         e = to_ankle / np.maximum(dist, 1e-9)[:, None]
         dist = np.clip(dist, abs(l1 - l2) + 1e-6, (l1 + l2) * (1 - 1e-6))
-        pole = _heading(plan.foot_yaw[:, k]) + g_root @ _Z
+        if plan.knees is None:
+            pole = _heading(plan.foot_yaw[:, k]) + g_root @ _Z
+        else:
+            pole = plan.knees[:, k]
         pole = pole - np.sum(pole * e, -1, keepdims=True) * e
         pole /= np.maximum(np.linalg.norm(pole, axis=-1), 1e-9)[:, None]
         cos_a = np.clip((l1 * l1 + dist * dist - l2 * l2) / (2 * l1 * dist), -1.0, 1.0)
@@ -893,7 +1239,9 @@ def make_motion(
         ``twirl`` (continuous spins in place, arms out), ``walk`` (straight), ``circle-walk``,
         ``idle`` (gentle sway, weight shifts), ``jump`` (crouch, take-off, flight, landing),
         ``broad-jump`` (standing long jumps), ``run`` (a straight jog to run, 2.5 to 3.4 m/s,
-        with a flight between steps).
+        with a flight between steps), ``squat`` (deep wide-legged squats), ``kick`` (high front
+        kicks), ``kneel`` (down on one knee and up, sides taking turns); the last three start
+        standing still and stand still at least 1 s between movements.
     frames : number of frames (>= 1)
     fps : frames per second (> 0); frame i is at time i / fps seconds
     seed : non-negative integer; the same seed gives the same motion at any fps and length

@@ -21,7 +21,10 @@ from pipeline.playback import Playback, load_motion_for
 
 #: Procedural kinds offered in the motion list (``core.motion.procedural.PROCEDURAL_KINDS``;
 #: written out so the window opens without importing the motion code).
-PROCEDURAL = ("dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump", "run")
+PROCEDURAL = (
+    "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump", "run", "squat", "kick",
+    "kneel",
+)  # fmt: skip
 
 
 class MotionTab(Part):
