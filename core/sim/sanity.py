@@ -7,6 +7,8 @@ the sanity tests and by ``dng bench sim``:
   against standing (a spin flares a skirt: at 1 rev/s the centripetal acceleration at a 30 cm
   hem, 12 m/s^2, exceeds gravity);
 * :func:`hem_lift`: the hem's height below the waist against standing (a jump's fall lifts it);
+* :func:`rise_over_hips`: how far a band of the garment (the waistband, the hem) rose along the
+  pelvis's up axis against frame 0 (a skirt riding up after a squat or a kick);
 * :func:`hem_indices`: the hem, the garment's lowest boundary loop.
 """
 
@@ -89,6 +91,29 @@ def hem_lift(positions: np.ndarray, hem: np.ndarray, waist: np.ndarray) -> np.nd
     p = np.asarray(positions, np.float64)
     rel = p[:, hem, 1].mean(axis=1) - _centres(p, waist)[:, 1]
     return rel - rel[0]
+
+
+def rise_over_hips(
+    positions: np.ndarray, band: np.ndarray, hips: np.ndarray, up: np.ndarray
+) -> np.ndarray:
+    """How far a band of vertices rose along the pelvis's up axis since frame 0, relative to
+    the hips joint, per frame (metres, (T,) float64): the waistband of a skirt that rides up
+    climbs the torso; its hem, bunched over the hips, stays up when the body stands again.
+
+    positions (T, V, 3) float; band (B,) int; hips (T, 3) float the hips joint; up (T, 3)
+    float the pelvis's up direction (hips to the spine above it; normalised here).
+    """
+    p = np.asarray(positions, np.float64)
+    h = np.asarray(hips, np.float64)
+    u = np.asarray(up, np.float64)
+    if p.ndim != 3 or h.shape != (len(p), 3) or u.shape != (len(p), 3) or not len(band):
+        raise InputError(
+            f"need positions (T, V, 3), hips and up (T, 3) and a band: got {p.shape}, "
+            f"{h.shape}, {u.shape}, {len(band)} vertices"
+        )
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    height = np.einsum("tbk,tk->t", p[:, band] - h[:, None], u) / len(band)
+    return height - height[0]
 
 
 #: Standard deviation (metres) of the random displacement of a rest garment that measures a
