@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 
-from app.gui.backend import hide_anisotropy, select_backend, window_backend
+from app.gui.backend import hide_anisotropy, select_backend, software_rendering, window_backend
 
 
 def start_application():
@@ -26,13 +26,15 @@ def start_application():
 
     The backend is :func:`app.gui.backend.window_backend`'s. Mesa's environment is set before
     ``initialize``, where it is read; a user's own setting wins, and hardware drivers ignore it:
-    - anisotropic filtering hidden (:func:`app.gui.backend.hide_anisotropy`): with it, llvmpipe
-      froze the window whenever a sliver of the garment was drawn edge-on;
+    - under software rendering, anisotropic filtering hidden
+      (:func:`app.gui.backend.hide_anisotropy`): with it, llvmpipe froze the window whenever a
+      sliver of the garment was drawn edge-on;
     - ``LP_NUM_THREADS=0``: llvmpipe rasterizes on the submitting thread instead of two threads
       of its own (a tour on 2 cores ran as fast: 35-37 s against 42 s).
     """
     os.environ.setdefault("LP_NUM_THREADS", "0")
-    hide_anisotropy()
+    if software_rendering():
+        hide_anisotropy()
     import open3d.visualization.gui as gui
 
     select_backend(window_backend())

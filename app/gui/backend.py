@@ -73,9 +73,8 @@ def window_backend() -> str:
 
 def hide_anisotropy(environ=os.environ) -> None:
     """Add :data:`NO_ANISOTROPY` to ``MESA_EXTENSION_OVERRIDE`` (keeping what a user set there);
-    Mesa reads it when the first OpenGL context is made, so call it before the window opens.
-    Hardware drivers other than Mesa's ignore it; on a Mesa GPU driver it only costs texture
-    sharpness at grazing angles."""
+    Mesa reads it when the first OpenGL context is made, so call it before the window opens
+    (:func:`app.gui.start_application` does, under software rendering only)."""
     entries = environ.get("MESA_EXTENSION_OVERRIDE", "").split()
     entries += [e for e in NO_ANISOTROPY if e not in entries and "+" + e[1:] not in entries]
     environ["MESA_EXTENSION_OVERRIDE"] = " ".join(entries)

@@ -916,12 +916,10 @@ _LEAD = (0.3, 0.8)
 _STILL = (1.0, 1.8)
 
 
-def _plan_squat(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
-    """Deep wide-legged squats: step out to the ankles 0.6 to 0.8 m apart, toes turned out 30
-    to 40 degrees; one to three squats (the root 0.40 to 0.45 m below its height with the feet
-    together, the thighs about level, sitting back, the torso leaning, arms forward, the knees
-    out towards the toes; held), each followed by standing up and standing still; step back in.
-    Lengths for a 1.70 m body."""
+def _script_start(rng: Streams, body: _Body) -> tuple[_Script, dict, float, float, np.ndarray]:
+    """A scripted clip's start, from stream 0: (the script, standing still for ``_LEAD``
+    seconds; the standing pose; lengths' scale for the body, 1 at 1.70 m; heading (rad); floor
+    position (2,) of the root)."""
     r0 = rng(0)
     scale = body.height / 1.70
     psi0 = r0.uniform(-np.pi, np.pi)
@@ -929,6 +927,16 @@ def _plan_squat(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     rest = _standing(r0, body)
     s = _Script(0.0, rest)
     s.wait(r0.uniform(*_LEAD))
+    return s, rest, scale, psi0, c0
+
+
+def _plan_squat(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
+    """Deep wide-legged squats: step out to the ankles 0.6 to 0.8 m apart, toes turned out 30
+    to 40 degrees; one to three squats (the root 0.40 to 0.45 m below its height with the feet
+    together, the thighs about level, sitting back, the torso leaning, arms forward, the knees
+    out towards the toes; held), each followed by standing up and standing still; step back in.
+    Lengths for a 1.70 m body."""
+    s, rest, scale, psi0, c0 = _script_start(rng, body)
     rs = rng(1)
 
     def step(f: int, x: float, yaw: float) -> None:
@@ -974,13 +982,7 @@ def _plan_kick(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     to ankle 86 to 98 degrees from straight down, the pelvis leaning back 15 to 22 degrees, the
     foot pointed), comes back down to where it stood; arms out for balance, the arm opposite
     the kicking leg forward. The body then stands still."""
-    r0 = rng(0)
-    scale = body.height / 1.70
-    psi0 = r0.uniform(-np.pi, np.pi)
-    c0 = r0.uniform(-0.3, 0.3, 2)
-    rest = _standing(r0, body)
-    s = _Script(0.0, rest)
-    s.wait(r0.uniform(*_LEAD))
+    s, rest, scale, psi0, c0 = _script_start(rng, body)
     rk = rng(1)
     f = int(rk.integers(2))  # the first kicking leg
     # (lift-off, touch-down, leg, swing at the top (deg), hip to ankle at the top (m), how far
@@ -1048,13 +1050,7 @@ def _plan_kneel(t: np.ndarray, rng: Streams, body: _Body) -> _Plan:
     0.025 to 0.028 body heights up; the knee's radius is 0.03) with the thigh nearly upright, the
     front thigh about level and the back foot's heel up (toes tucked under); held; back up
     to the lunge, and the foot steps back beside the other. The body then stands still."""
-    r0 = rng(0)
-    scale = body.height / 1.70
-    psi0 = r0.uniform(-np.pi, np.pi)
-    c0 = r0.uniform(-0.3, 0.3, 2)
-    rest = _standing(r0, body)
-    s = _Script(0.0, rest)
-    s.wait(r0.uniform(*_LEAD))
+    s, rest, scale, psi0, c0 = _script_start(rng, body)
     rk = rng(1)
     skel, i = body.skel, body.skel.index
     thigh = float(np.linalg.norm(skel.offsets[i("LeftLeg")]))
