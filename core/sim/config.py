@@ -143,6 +143,12 @@ class SimConfig:
     """Friction against the body of a proxy kept off it by the layers beneath it (``thickness``
     of :func:`core.sim.simulate.simulate`), in place of the fabric's: those layers slide. The
     fabric's snagged the quick proxy on a kicking leg (docs/decisions.md, "layer_friction")."""
+    layer_ke: float = 10.0
+    """Stiffness (N/m per vertex) with which the layers beneath a proxy vertex (``thickness``
+    of :func:`core.sim.simulate.simulate`) push back once the body presses into them, beyond
+    the margin met at ``contact_ke`` (the implicit solver; Style3D's contact has one stiffness).
+    Frills and the air between them give: as a rigid shell they held a skirt on the hips after
+    a kick (docs/decisions.md, "The layers beneath the proxy are soft")."""
     self_contact_thickness: float = 0.003
     """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
     It must stay below the gaps a layered garment is built with (the built-in templates stack
@@ -193,6 +199,7 @@ class SimConfig:
             "collision_margin": self.collision_margin > 0,
             "self_contact_thickness": self.self_contact_thickness > 0,
             "contact_ke": self.contact_ke > 0,
+            "layer_ke": self.layer_ke >= 0,
             "contact_gap": self.contact_gap >= 0,
             "damping": self.damping >= 0,
             "max_retries": self.max_retries >= 0,

@@ -177,7 +177,8 @@ class ImplicitCloth:
     rest : ClothRest
     stretch_ke : N/m, ``ku = kv``; shear ``ks = stretch_ke / 2`` (as Style3D is set up here)
     contact_ke : N/m body-contact stiffness
-    radius : (V,) float metres each vertex keeps from a capsule's surface
+    radius : (V,) float metres each vertex keeps from a capsule's surface (its margin), met at
+        ``contact_ke``
     friction : (K,) float, each capsule's Coulomb coefficient
     capsule_radii : (K,) float
     pinned : (P,) int kinematic vertices
@@ -185,20 +186,30 @@ class ImplicitCloth:
     iterations : the most Newton iterations a step runs
     norm : ``"max"`` (the update's largest vertex) or ``"rms"`` (its root mean square over the
         vertices) against ``tol``
+    layers : (V,) float metres of soft layers beyond each vertex's margin, or None (none)
+    layer_ke : N/m with which those layers push back once the body presses into them
     """
 
     def __init__(
         self, rest: ClothRest, stretch_ke: float, contact_ke: float, radius: np.ndarray,
         friction: np.ndarray, capsule_radii: np.ndarray, pinned: np.ndarray, tol: float,
-        iterations: int, norm: str = "max",
+        iterations: int, norm: str = "max", layers: np.ndarray | None = None,
+        layer_ke: float = 0.0,
     ):  # fmt: skip
         self.rest = rest
         self.ku = self.kv = float(stretch_ke)
         self.ks = 0.5 * float(stretch_ke)
         self.contact_ke = float(contact_ke)
-        self.reach = (
+        # (V, K): the margin's reach (met at contact_ke) and, beyond it by the layers, the
+        # reach of the layers (met at layer_ke); without layers the two are one
+        self.solid = (
             np.asarray(radius, np.float64)[:, None] + np.asarray(capsule_radii, np.float64)[None]
         )
+        self.reach = self.solid
+        self.layer_ke = 0.0
+        if layers is not None:
+            self.reach = self.solid + np.asarray(layers, np.float64)[:, None]
+            self.layer_ke = float(layer_ke)
         self.mu = np.asarray(friction, np.float64)
         self.tol, self.iterations = float(tol), int(iterations)
         if norm not in IMPLICIT_NORMS:
@@ -319,21 +330,29 @@ class ImplicitCloth:
         return energy, grad, h
 
     def _contact(self, y: np.ndarray, ends: np.ndarray, pairs, hessian: bool, gradient=True):
-        """Penalty on the candidate ``pairs`` (vertex (P,), capsule (P,), reach (P,))."""
+        """Penalty on the candidate ``pairs`` (vertex (P,), capsule (P,), reach (P,)): the
+        margin's ``contact_ke (solid - d)^2 / 2`` plus the layers' ``layer_ke (reach - d)^2 /
+        2`` where each is positive."""
         vi, ki, reach = pairs
+        solid = self.solid[vi, ki]
         if not gradient:
-            pen = np.clip(reach - segment_distances(y[vi], ends[ki, 0], ends[ki, 1]), 0.0, None)
-            return 0.5 * self.contact_ke * (pen * pen).sum(), None, None
+            d = segment_distances(y[vi], ends[ki, 0], ends[ki, 1])
+            pen, soft = np.clip(solid - d, 0.0, None), np.clip(reach - d, 0.0, None)
+            energy = 0.5 * (
+                self.contact_ke * (pen * pen).sum() + self.layer_ke * (soft * soft).sum()
+            )
+            return energy, None, None
         d, n, _ = closest_on_segments(y[vi], ends[ki, 0], ends[ki, 1])
-        pen = np.clip(reach - d, 0.0, None)  # (P,)
-        energy = 0.5 * self.contact_ke * (pen * pen).sum()
+        pen, soft = np.clip(solid - d, 0.0, None), np.clip(reach - d, 0.0, None)  # (P,)
+        energy = 0.5 * (self.contact_ke * (pen * pen).sum() + self.layer_ke * (soft * soft).sum())
         grad = np.zeros_like(y)
-        np.add.at(grad, vi, -self.contact_ke * pen[:, None] * n)
+        np.add.at(grad, vi, -(self.contact_ke * pen + self.layer_ke * soft)[:, None] * n)
         h = None
         if hessian:
             h = np.zeros((len(y), 3, 3))
-            touch = pen > 0
-            np.add.at(h, vi[touch], self.contact_ke * n[touch, :, None] * n[touch, None, :])
+            k = self.contact_ke * (pen > 0) + self.layer_ke * (soft > 0)
+            touch = k > 0
+            np.add.at(h, vi[touch], k[touch, None, None] * n[touch, :, None] * n[touch, None, :])
         return energy, grad, h
 
     def _pairs(self, points: list[np.ndarray], ends: list[np.ndarray], pad: float, start=None):
@@ -433,7 +452,10 @@ class ImplicitCloth:
         """The friction's lagged terms (:meth:`_friction`) from the contacts at the step's
         start (``gap0`` (V, K): :func:`segment_gaps` of ``x`` against ``ends0``), or None
         without any."""
-        lam = self.contact_ke * np.clip(self.reach - gap0, 0.0, None) * self.mu[None]
+        lam = self.contact_ke * np.clip(self.solid - gap0, 0.0, None)
+        if self.layer_ke:
+            lam = lam + self.layer_ke * np.clip(self.reach - gap0, 0.0, None)
+        lam = lam * self.mu[None]
         vi, ki = np.nonzero(lam > 0)
         if not len(vi):
             return None
@@ -538,13 +560,12 @@ class ImplicitScene:
         self.config = config
         self.pins = pins
         radius = np.full(garment.num_vertices, config.collision_margin)
-        if thickness is not None:
-            radius = radius + np.asarray(thickness, np.float64)
         rest = cloth_rest(garment.vertices, garment.faces, fab.density, fab.bend_ke)
         mu = np.array([0.0 if is_arm(name) else friction for name in capsules.names])
         self.cloth = ImplicitCloth(
             rest, fab.stretch_ke, config.contact_ke, radius, mu, capsules.radii,
             pins.indices, config.implicit_tol, config.iterations, config.implicit_norm,
+            thickness, config.layer_ke,
         )  # fmt: skip
         self.x = garment.vertices.astype(np.float64)
         self.v = np.zeros_like(self.x)
