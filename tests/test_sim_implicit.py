@@ -85,6 +85,56 @@ def test_gradient_and_hessian_match_finite_differences():
     assert np.abs(num_h - h.toarray()).max() < 1e-4 * np.abs(num_h).max()
 
 
+def test_the_soft_layers_contact_gradient_matches_finite_differences():
+    """Beyond the margin (met at ``contact_ke``) a proxy's layers push back at ``layer_ke``:
+    the contact's energy is ``contact_ke (solid - d)^2 / 2 + layer_ke (reach - d)^2 / 2``, and
+    its gradient is that energy's, with vertices in the layers only and in both."""
+    v, f, i = _sheet(6, 0.3)
+    ends = np.array([[[0.0, 0.9, 0.15], [0.3, 0.9, 0.15]]])
+    layers = np.linspace(0.0, 0.1, len(v))
+    cloth = ImplicitCloth(cloth_rest(v, f, 0.15, 0.0), 5e3, 1e4, np.full(len(v), 0.004),
+                          np.zeros(1), np.array([0.05]), i[0], 1e-5, 8, layers=layers,
+                          layer_ke=30.0)  # fmt: skip
+    rng = np.random.default_rng(1)
+    y = v - np.array([0.0, 0.06, 0.0]) + 0.005 * rng.standard_normal(v.shape)
+    pairs = cloth._pairs([y], [ends], 0.0)
+    d = segment_gaps(y, ends)[:, 0]
+    solid, reach = 0.054, 0.054 + layers
+    assert ((d < solid).sum() > 2) and ((d > solid) & (d < reach)).sum() > 2  # both zones
+    e, g, _ = cloth._contact(y, ends, pairs, False)
+    expect = 0.5 * (1e4 * np.clip(solid - d, 0, None) ** 2).sum()
+    expect += 0.5 * (30.0 * np.clip(reach - d, 0, None) ** 2).sum()
+    assert e == pytest.approx(expect, rel=1e-9)
+    num = np.zeros_like(y)
+    for a in range(len(y)):
+        for c in range(3):
+            yp, ym = y.copy(), y.copy()
+            yp[a, c] += 1e-7
+            ym[a, c] -= 1e-7
+            num[a, c] = (cloth._contact(yp, ends, pairs, False, False)[0]
+                         - cloth._contact(ym, ends, pairs, False, False)[0]) / 2e-7  # fmt: skip
+    assert np.abs(num - g).max() < 1e-5 * np.abs(g).max()
+
+
+@pytest.mark.parametrize(("layer_ke", "low", "high"), [(1e4, 0.028, 0.031), (10.0, 0.0, 0.026)])
+def test_layers_hold_a_sheet_off_a_bar_rigidly_or_give_under_its_weight(layer_ke, low, high):
+    """A pinned sheet hangs over a bar with 30 mm of layers beneath every vertex: at
+    ``contact_ke`` they hold it 30 mm off (a rigid shell); at 10 N/m its weight presses it into
+    them, but not through the margin."""
+    v, f, i = _sheet(10, 0.6)
+    ends = np.array([[[0.1, 0.9, 0.3], [0.5, 0.9, 0.3]]])
+    cloth = ImplicitCloth(cloth_rest(v, f, 0.15, 2e-5), 5e3, 1e4, np.full(len(v), 0.004),
+                          np.zeros(1), np.array([0.05]), i[0], 1e-5, 16,
+                          layers=np.full(len(v), 0.03), layer_ke=layer_ke)  # fmt: skip
+    x, vel = v.copy(), np.zeros_like(v)
+    for _ in range(240):  # 1 s at 240 steps a second
+        x, vel = cloth.step(x, vel, v[i[0]], ends, ends, 1 / 240)
+    into = 0.054 + 0.03 - segment_gaps(x, ends).min()  # deepest into the layers
+    assert np.isfinite(x).all()
+    assert low <= 0.03 - into <= high, 0.03 - into  # what is left of the layers, metres
+    assert segment_gaps(x, ends).min() > 0.054 - 0.001  # never through the margin
+
+
 def test_contact_pairs_pruned_by_the_step_start_are_the_pairs_of_every_gap():
     """The contact candidates measured only where the step start's gaps cannot rule them
     out are the same pairs, in the same order, as measuring every vertex against every

@@ -17,7 +17,14 @@ from core.errors import InputError
 from core.mesh import Mesh
 from core.motion.procedural import make_motion
 from core.sim.config import SimConfig
-from core.sim.sanity import hem_indices, hem_lift, hem_radius, hem_radius_ratio, rise_over_hips
+from core.sim.sanity import (
+    after_legs_close,
+    hem_indices,
+    hem_lift,
+    hem_radius,
+    hem_radius_ratio,
+    rise_over_hips,
+)
 from core.sim.simulate import simulate
 from tests.sim_helpers import frustum_skirt, spin_motion
 
@@ -147,6 +154,24 @@ def test_rise_over_hips_on_known_geometry():
         rise_over_hips(positions, band, hips[:2], up)
 
 
+def test_after_legs_close_on_known_feet():
+    """Feet apart, together (frame 10 on), apart (30 on), together for good (40 on): the value
+    1 s (10 frames at 10 fps) after each closing that lasts that long, not after the brief
+    one that does not."""
+    t = 80
+    gap = np.full(t, 0.6)
+    gap[10:30] = 0.1
+    gap[40:] = 0.1
+    feet = np.zeros((t, 2, 3))
+    feet[:, 1, 0] = gap
+    values = np.arange(t, dtype=float)
+    np.testing.assert_array_equal(after_legs_close(values, feet, 10.0), [20.0, 50.0])
+    np.testing.assert_array_equal(after_legs_close(values, feet, 10.0, delay_s=2.5), [65.0])
+    assert not len(after_legs_close(values, np.zeros((t, 2, 3)), 10.0))  # never apart
+    with pytest.raises(InputError):
+        after_legs_close(values, feet[:-1], 10.0)
+
+
 # --------------------------------------------------------- the quick proxy on crouches and kicks
 #
 # What made the skirt ride up on real captures (a deep wide crouch, a high kick): the quick
@@ -154,8 +179,8 @@ def test_rise_over_hips_on_known_geometry():
 
 #: The most the waistband may rise or sink along the pelvis (metres).
 WAIST_RISE_M = 0.05
-#: How far above where it hung the hem may end once the body has stood still again (metres).
-HEM_BACK_M = 0.05
+#: How far above where it hung the hem may be 1 s after the legs close (metres; issue 55).
+HEM_BACK_M = 0.08
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +188,7 @@ def quick_proxy_runs():
     """Simulations of the quick preset's proxy (as ``dng demo`` derives it from the multilayer
     skirt, with its layers' thickness) on 10 s of ``squat``, ``kick`` and ``kneel``, made on
     first use: kind -> (positions (T, V, 3), report, pinned (P,), hem (H,), hips (T, 3),
-    up (T, 3))."""
+    up (T, 3), feet (T, 2, 3))."""
     from core.motion.mapping import MAPPED_JOINTS, canonical_positions
     from core.proxy import ProxyConfig, derive_proxy
     from core.sim.thickness import layer_thickness
@@ -176,6 +201,7 @@ def quick_proxy_runs():
     proxy = derive_proxy(target, cfg).positions
     thickness = layer_thickness(proxy.vertices, proxy.faces, target.vertices)
     spine = MAPPED_JOINTS.index("Spine1")
+    left, right = MAPPED_JOINTS.index("LeftFoot"), MAPPED_JOINTS.index("RightFoot")
     runs: dict = {}
 
     def run(kind: str):
@@ -195,6 +221,7 @@ def quick_proxy_runs():
                 hem,
                 joints[:, 0],
                 joints[:, spine] - joints[:, 0],
+                joints[:, [left, right]],
             )
         return runs[kind]
 
@@ -204,7 +231,7 @@ def quick_proxy_runs():
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["squat", "kick", "kneel"])
 def test_quick_proxy_waistband_holds_on_a_squat_a_kick_and_a_kneel(quick_proxy_runs, kind):
-    positions, report, pinned, _, hips, up = quick_proxy_runs(kind)
+    positions, report, pinned, _, hips, up, _ = quick_proxy_runs(kind)
     assert report.finite
     rise = rise_over_hips(positions, pinned, hips, up)
     assert np.abs(rise).max() <= WAIST_RISE_M, f"{kind}: the waistband moved {rise.max():.3f} m"
@@ -213,11 +240,13 @@ def test_quick_proxy_waistband_holds_on_a_squat_a_kick_and_a_kneel(quick_proxy_r
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 55: after the kicks the quick proxy's hem stays about 24 cm up, bunched "
-    "over the hips (with the layers' thickness the skirt rests on inflated hips and thighs, and "
-    "folds pass through one another); this passes once the cloth falls back",
+    reason="issue 55: with the layers soft the hem falls back to 3 cm after the first kick, "
+    "but after the later kicks it stays 13 to 15 cm up: the proxy's tiers, folded into each "
+    "other, are held by the membrane's resistance to compression (docs/decisions.md, \"The "
+    'skirt rides up after a squat and stays"); this passes once the cloth falls back',
 )
 def test_quick_proxy_hem_falls_back_after_a_kick(quick_proxy_runs):
-    positions, _, _, hem, hips, up = quick_proxy_runs("kick")
-    rise = rise_over_hips(positions, hem, hips, up)
-    assert rise[-15:].mean() <= HEM_BACK_M, f"the hem ended {rise[-15:].mean():.3f} m up"
+    positions, _, _, hem, hips, up, feet = quick_proxy_runs("kick")
+    rise = after_legs_close(rise_over_hips(positions, hem, hips, up), feet, 30.0)
+    assert len(rise) >= 2  # the clip closes the legs after its kicks
+    assert rise.max() <= HEM_BACK_M, f"1 s after the legs closed the hem was {rise} m up"

@@ -22,9 +22,10 @@ Baraff-Witkin membrane ``A (ku (|Fu| - 1)^2 + kv (|Fv| - 1)^2 + ks (Fu . Fv)^2) 
 triangle laid flat (``ku = kv = stretch_ke``, ``ks = stretch_ke / 2``; Style3D's shear force
 normalises ``Fu``, ``Fv``, the same to first order) and Bergou's quadratic (isometric) bending
 ``kb x^T Q x / 2``. The body is the same capsules; a vertex at distance ``d`` from a capsule of
-radius ``r`` with contact radius ``R`` (``collision_margin`` plus its layers' ``thickness``) has
-the penalty ``contact_ke (r + R - d)^2 / 2`` where that is positive, and lagged Coulomb friction
-(IPC's smoothed ``mu lambda f0(|u_T|)``, its normal force ``lambda`` and direction taken at the
+radius ``r`` with contact margin ``R`` (``collision_margin``) has the penalty ``contact_ke (r + R
+- d)^2 / 2`` where that is positive; a proxy's layers (``thickness`` ``L`` beneath the vertex)
+add a soft ``layer_ke (r + R + L - d)^2 / 2`` (:mod:`core.sim.thickness`); and lagged Coulomb
+friction (IPC's smoothed ``mu lambda f0(|u_T|)``, its normal force ``lambda`` and direction taken at the
 step's start, the slip ``u_T`` against the capsule's own motion). Pinned vertices follow their
 bones (kinematic, out of the solve). A single surface only: no cloth-cloth contact, no seams.
 

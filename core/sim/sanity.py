@@ -9,6 +9,8 @@ the sanity tests and by ``dng bench sim``:
 * :func:`hem_lift`: the hem's height below the waist against standing (a jump's fall lifts it);
 * :func:`rise_over_hips`: how far a band of the garment (the waistband, the hem) rose along the
   pelvis's up axis against frame 0 (a skirt riding up after a squat or a kick);
+* :func:`after_legs_close`: a measure (the hem's rise) a while after each time the feet come
+  together and stay (the hem of a real skirt falls back within a second);
 * :func:`hem_indices`: the hem, the garment's lowest boundary loop.
 """
 
@@ -114,6 +116,30 @@ def rise_over_hips(
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     height = np.einsum("tbk,tk->t", p[:, band] - h[:, None], u) / len(band)
     return height - height[0]
+
+
+def after_legs_close(
+    values: np.ndarray, feet: np.ndarray, fps: float, delay_s: float = 1.0, apart_m: float = 0.3
+) -> np.ndarray:
+    """``values`` (T,) (a band's :func:`rise_over_hips`) ``delay_s`` after each frame at which
+    the feet come within ``apart_m`` of each other, having been farther apart the frame before,
+    and stay so for ``delay_s``: (E,) float64, one per such closing (none: empty).
+
+    feet : (T, 2, 3) float the left and right foot joints.
+    """
+    v = np.asarray(values, np.float64)
+    f = np.asarray(feet, np.float64)
+    if v.ndim != 1 or f.shape != (len(v), 2, 3) or fps <= 0 or delay_s < 0:
+        raise InputError(
+            f"need values (T,) and feet (T, 2, 3) with fps > 0: got {v.shape}, {f.shape}, {fps}"
+        )
+    close = np.linalg.norm(f[:, 0] - f[:, 1], axis=1) < apart_m
+    wait = int(round(delay_s * fps))
+    starts = [
+        i for i in range(1, len(v) - wait)
+        if close[i] and not close[i - 1] and close[i : i + wait + 1].all()
+    ]  # fmt: skip
+    return v[np.asarray(starts, np.int64) + wait] if starts else np.zeros(0)
 
 
 #: Standard deviation (metres) of the random displacement of a rest garment that measures a

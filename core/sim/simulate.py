@@ -720,6 +720,7 @@ def prepare(
             f"kept off the body by the layers beneath it: up to {1e3 * thickness.max():.0f} mm "
             f"(mean {1e3 * thickness.mean():.0f}) beyond the {1e3 * config.collision_margin:.0f} "
             f"mm margin, at friction {config.layer_friction:g}"
+            + (f", soft at {config.layer_ke:g} N/m" if config.solver == "implicit" else "")
         )
     if config.solver == "implicit":
         from core.sim.implicit import ImplicitScene  # scipy only: no warp, no newton

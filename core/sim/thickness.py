@@ -27,6 +27,14 @@ over the project's 28 clips, where the thin proxy reached 0.822 on a Boxing_Toes
 
 It overstates the layers where air lies between them: pressed, real layers close those gaps,
 and these cannot (the embedding keeps every layer's offset from the envelope).
+
+So, in the implicit solver (the ground truth's), the layers are soft: the margin meets the body
+at ``SimConfig.contact_ke`` and the depth beyond it pushes back at ``SimConfig.layer_ke`` (10
+N/m a vertex: the skirt's own weight presses them a fraction of a millimetre, a ring of cloth
+pulled tight over the hips presses them flat). As a rigid shell they made the hips and thighs
+fatter by up to 89 mm for the lower skirt: after a high kick the quick proxy rested on the hips
+(the body's contact carried 1.66 of the skirt's 2.02 N) with its hem 20 cm up. Soft, it falls
+back to 3 cm (docs/decisions.md, "layer_ke").
 """
 
 from __future__ import annotations
