@@ -910,19 +910,27 @@ def report_markdown(report: dict) -> str:
         "",
         "Hem ratio: the hem's mean distance from the waist's axis over the clip's second half "
         "over frame 0's (above 1: it flared out, below 1: it closed in; n/a for an embedded "
-        "target, or a simulation made before the figure existed).",
+        "target, or a simulation made before the figure existed). Waistband drift: the pinned "
+        "waistband's largest rise or sink along the pelvis (hips joint to Spine1) against "
+        "frame 0; hem at end: the hem's rise along the pelvis over the clip's last half second "
+        "(a skirt that rode up and stayed; a clip may end mid-movement). Both relative to the "
+        "hips joint, n/a as for the hem ratio.",
         "",
         "| clip | frames | vertices | ms/frame | penetration mean / max (mm) | max strain | "
-        "hem ratio | finite |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "hem ratio | waistband drift (mm) | hem at end (mm) | finite |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
+
+    def figure(value, spec: str) -> str:
+        return "n/a" if value is None else format(value, spec)
+
     for name, s in report["simulation"].items():
-        flare = s.get("hem_radius_ratio")
         lines.append(
             f"| {name} | {s['frames']} | {s['vertices']} | {s['ms_per_frame']:.0f} | "
             f"{s['penetration_mean_mm']:.2f} / {s['penetration_max_mm']:.1f} | "
-            f"{s['strain_max']:.3f} | {'n/a' if flare is None else f'{flare:.2f}'} | "
-            f"{s['finite']} |"
+            f"{s['strain_max']:.3f} | {figure(s.get('hem_radius_ratio'), '.2f')} | "
+            f"{figure(s.get('waistband_rise_max_mm'), '.0f')} | "
+            f"{figure(s.get('hem_rise_end_mm'), '.0f')} | {s['finite']} |"
         )
     lines += _ground_truth_markdown(report)
     j = report["joint2coarse"]

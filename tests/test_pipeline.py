@@ -41,10 +41,14 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
         assert sim["penetration_mean_mm"] < 5.0, name
         if name.endswith("-proxy"):  # simulated (the targets are embedded): its hem's ratio
             assert 0.3 < sim["hem_radius_ratio"] < 3.0, name
+            assert sim["waistband_rise_max_mm"] <= 50.0, name  # issue 55: the waistband holds
+            assert np.isfinite(sim["hem_rise_end_mm"]), name
         else:  # embedded and kept out of the body, without a tear
             assert sim["contact"]["margin"] > 0 and sim["penetration_max_mm"] == 0.0, name
             assert sim["torn_edges"] == 0 and sim["strain_p99"] <= 0.1, name
-    assert "| hem ratio |" in (out / "report.md").read_text()
+    assert (
+        "| hem ratio | waistband drift (mm) | hem at end (mm) |" in (out / "report.md").read_text()
+    )
     proxy = report["proxy"]["proxy"]
     assert proxy["boundary_loops"] == 2 and proxy["components"] == 1
     j2c = report["joint2coarse"]

@@ -229,6 +229,25 @@ def test_simulate_with_the_implicit_solver():
     assert report.strain_max < report.strain_limit
     assert report.penetration_mean_mm < 2.0
     assert cache.positions[0, :, 1].min() < skirt.vertices[:, 1].min()  # the hem sank
+    # the pinned waistband follows the pelvis; the hem's rise along it is measured
+    assert 0.0 <= report.waistband_rise_max_mm < 5.0 and np.isfinite(report.hem_rise_end_mm)
+
+
+def test_the_pelvis_of_the_report_is_the_motions_hips_and_spine():
+    """The report's waistband and hem rises are along the hips joint and Spine1 of the body as
+    simulated: the same joints the motion's canonical positions give, frame by frame."""
+    from core.body.shape import mannequin_skeleton
+    from core.motion.mapping import MAPPED_JOINTS, canonical_positions
+    from core.motion.procedural import make_motion
+    from core.sim.simulate import _pelvis, prepare
+
+    motion = make_motion("kick", 20, 30.0, 0, BodyShape())
+    run = prepare(frustum_skirt(24, 12), motion, BodyShape(), FAST)
+    hips, up = _pelvis(mannequin_skeleton(BodyShape()), run.drive)
+    joints = canonical_positions(motion)
+    spine = MAPPED_JOINTS.index("Spine1")
+    np.testing.assert_allclose(hips, joints[:, 0], atol=2e-3)
+    np.testing.assert_allclose(up, joints[:, spine] - joints[:, 0], atol=2e-3)
 
 
 def test_implicit_solver_refuses_a_layered_garment_and_a_bad_tolerance():

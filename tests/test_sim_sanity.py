@@ -18,11 +18,13 @@ from core.mesh import Mesh
 from core.motion.procedural import make_motion
 from core.sim.config import SimConfig
 from core.sim.sanity import (
+    FLOOR_PERTURBATION_M,
     after_legs_close,
     hem_indices,
     hem_lift,
     hem_radius,
     hem_radius_ratio,
+    perturbed,
     rise_over_hips,
 )
 from core.sim.simulate import simulate
@@ -204,17 +206,18 @@ def quick_proxy_runs():
     left, right = MAPPED_JOINTS.index("LeftFoot"), MAPPED_JOINTS.index("RightFoot")
     runs: dict = {}
 
-    def run(kind: str):
-        if kind not in runs:
+    def run(kind: str, draw: int | None = None):
+        if (kind, draw) not in runs:
             motion = make_motion(kind, 300, 30.0, 0, quick.body)
+            garment = proxy if draw is None else perturbed(proxy, FLOOR_PERTURBATION_M, draw)
             cache, report = simulate(
-                proxy, motion, quick.body, sim_config(quick), thickness=thickness
+                garment, motion, quick.body, sim_config(quick), thickness=thickness
             )
             joints = canonical_positions(motion)[: cache.num_frames]
             pinned = np.asarray(cache.params["pinned_indices"])
             rest_height = proxy.vertices[:, 1]
             hem = np.flatnonzero(rest_height <= np.quantile(rest_height, 0.05))
-            runs[kind] = (
+            runs[kind, draw] = (
                 cache.positions,
                 report,
                 pinned,
@@ -223,7 +226,7 @@ def quick_proxy_runs():
                 joints[:, spine] - joints[:, 0],
                 joints[:, [left, right]],
             )
-        return runs[kind]
+        return runs[kind, draw]
 
     return run
 
@@ -241,12 +244,17 @@ def test_quick_proxy_waistband_holds_on_a_squat_a_kick_and_a_kneel(quick_proxy_r
 @pytest.mark.xfail(
     strict=True,
     reason="issue 55: with the layers soft the hem falls back to 3 cm after the first kick, "
-    "but after the later kicks it stays 13 to 15 cm up: the proxy's tiers, folded into each "
-    "other, are held by the membrane's resistance to compression (docs/decisions.md, \"The "
+    "but after the later kicks it stays up to 8.5 cm up unmoved, and more in other draws: the "
+    "proxy's tiers, folded into each other, are held by the membrane's resistance to compression (docs/decisions.md, \"The "
     'skirt rides up after a squat and stays"); this passes once the cloth falls back',
 )
 def test_quick_proxy_hem_falls_back_after_a_kick(quick_proxy_runs):
-    positions, _, _, hem, hips, up, feet = quick_proxy_runs("kick")
-    rise = after_legs_close(rise_over_hips(positions, hem, hips, up), feet, 30.0)
-    assert len(rise) >= 2  # the clip closes the legs after its kicks
-    assert rise.max() <= HEM_BACK_M, f"1 s after the legs closed the hem was {rise} m up"
+    # The proxy as it is and moved 10 um five ways: each draw's folds go their own way.
+    high = {}
+    for draw in (None, 1, 2, 3, 4, 5):
+        positions, _, _, hem, hips, up, feet = quick_proxy_runs("kick", draw)
+        rise = after_legs_close(rise_over_hips(positions, hem, hips, up), feet, 30.0)
+        assert len(rise) >= 2  # the clip closes the legs after its kicks
+        if rise.max() > HEM_BACK_M:
+            high[draw] = np.round(rise, 3).tolist()
+    assert not high, f"1 s after the legs closed the hem was up (m, by draw): {high}"
