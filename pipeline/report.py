@@ -95,6 +95,7 @@ def headline_rows(report: dict) -> list[tuple[str, str]]:
             ("detail_masked", "garment-region detail ratio (1 = as much fine detail)", ".2f"),
             ("ssim_masked", "garment-region SSIM", ".3f"),
             ("flicker_masked", "garment-region flicker", ".4f"),
+            ("tof_masked", "garment-region tOF (optical flow's difference, px)", ".3f"),
         ):
             if not any(methods[m].get(key) for m in shown):
                 continue  # a report made before the metric existed

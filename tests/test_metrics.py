@@ -25,6 +25,7 @@ from training.metrics import (
     psnr,
     ssim,
     ssim_reference,
+    tof,
 )
 
 torch.set_num_threads(1)
@@ -139,6 +140,34 @@ def test_flicker_is_zero_for_a_consistent_offset_and_sees_jitter():
     assert flicker(gt[:1], gt[:1]).numel() == 0
 
 
+def _moving_pattern(frames: int, step: int, size: int = 64) -> torch.Tensor:
+    """A smooth random texture (grey, 3 channels) moving ``step`` px right each frame:
+    (frames, 3, size, size) in [0, 1]."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(4)
+    base = gaussian_filter(rng.random((size, size + step * frames)), 1.5)
+    base = (base - base.min()) / (base.max() - base.min())
+    shots = [base[:, step * (frames - k) : step * (frames - k) + size] for k in range(frames)]
+    return torch.from_numpy(np.stack(shots)).float()[:, None].repeat(1, 3, 1, 1)
+
+
+def test_tof_known_answers():
+    """Identical videos: 0. A rendering that stands still while the ground truth moves 2 px a
+    frame to the right: the flow differs by 2 px in x and 0 in y, a mean of 1 over the two
+    components. A rendering that moves as the ground truth does, darker: about 0 (tOF is about
+    motion, not colour). An empty mask: NaN; one frame: no pair."""
+    truth = _moving_pattern(3, 2)
+    inner = torch.zeros(3, 1, 64, 64)
+    inner[:, :, 16:48, 16:48] = 1.0  # away from the borders, where the flow is guessed
+    assert_close(tof(truth, truth, inner), [0.0, 0.0], atol=1e-12)
+    still = truth[:1].repeat(3, 1, 1, 1)
+    assert_close(tof(still, truth, inner), [1.0, 1.0], atol=0.1)
+    assert tof(0.7 * truth, truth, inner).max() < 0.1
+    assert torch.isnan(tof(still, truth, torch.zeros(3, 1, 64, 64))).all()
+    assert tof(truth[:1], truth[:1]).numel() == 0
+
+
 def test_frame_metrics_summary_across_batches_and_clips():
     gt = _images(5, 12)
     pred = gt.clone()
@@ -154,6 +183,7 @@ def test_frame_metrics_summary_across_batches_and_clips():
     assert s["mse_masked"]["n"] == 4
     assert s["flicker"]["n"] == 4
     assert s["flicker"]["mean"] == pytest.approx((0.1 + 0.1) / 4)
+    assert s["tof_masked"]["n"] == 4  # a pair per step of the clip, the empty mask's included
     assert s["psnr"]["mean"] == pytest.approx((4 * PSNR_CAP_DB + 20.0) / 5)
     json.dumps(s, allow_nan=False)  # valid JSON: no NaN or inf anywhere
 

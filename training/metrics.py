@@ -42,6 +42,13 @@ counts (the garment), 0 elsewhere; values in between weight the pixel.
   ``mean |(R_{t+1} - R_t) - (I_{t+1} - I_t)|`` over pixels and channels: how much the rendering
   changes beyond what the ground truth changes (0 for a perfect or a perfectly consistently
   wrong rendering). Masked: over the union of the two frames' masks.
+- tOF (TecoGAN, Chu et al. 2020) of consecutive frames t, t+1 of one clip: the optical flow
+  from frame t to t+1 of the rendering and of the ground truth, each by OpenCV's Farneback method
+  on the frames' luminance (8 bit; pyramid scale 0.5, 3 levels, 15 px window, 3 iterations,
+  polynomial neighbourhood 5 with sigma 1.2, as TecoGAN's code calls it), and the mean of
+  ``|F_R - F_I|`` over pixels and both flow components, in pixels: 0 where the rendering moves
+  as the ground truth does, whatever its colours. Masked: over the union of the two frames'
+  masks. It needs no downloaded weights.
 """
 
 from __future__ import annotations
@@ -65,8 +72,11 @@ SSIM_K2 = 0.03
 #: Metrics collected by :class:`FrameMetrics`, in report order.
 METRICS = (
     "mse", "psnr", "ssim", "mse_masked", "psnr_masked", "ssim_masked", "gmsd_masked",
-    "detail_masked", "flicker", "flicker_masked",
+    "detail_masked", "flicker", "flicker_masked", "tof_masked",
 )  # fmt: skip
+#: Farneback's settings for tOF (pyr_scale, levels, winsize, iterations, poly_n, poly_sigma,
+#: flags): TecoGAN's.
+FARNEBACK = (0.5, 3, 15, 3, 5, 1.2, 0)
 #: GMSD's stabilising constant for pixel values in [0, 1] (170 on [0, 255]).
 GMSD_C = 170.0 / 255.0**2
 #: Luminance weights (ITU-R BT.601), as GMSD's authors convert colour images.
@@ -316,6 +326,37 @@ def flicker(
     return _masked_mean(d.abs(), pair_mask)
 
 
+def optical_flow(frames: torch.Tensor) -> torch.Tensor:
+    """Farneback flow from each frame to the next (:data:`FARNEBACK`), on 8-bit luminance:
+    frames (N, 3, H, W) in [0, 1] -> (N - 1, 2, H, W) float64 pixels (x, y)."""
+    import cv2  # opencv-python-headless
+
+    gray = (luminance(torch.as_tensor(frames).double()).clamp(0, 1) * 255).round()
+    gray = gray[:, 0].to(torch.uint8).cpu().numpy()
+    flows = [cv2.calcOpticalFlowFarneback(a, b, None, *FARNEBACK) for a, b in zip(gray, gray[1:])]
+    if not flows:
+        return torch.zeros((0, 2, *gray.shape[1:]), dtype=torch.float64)
+    return torch.from_numpy(np.stack(flows).astype(np.float64)).permute(0, 3, 1, 2)
+
+
+def tof(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """tOF of consecutive frames of one clip (the module's docstring).
+
+    Parameters
+    ----------
+    pred, target : (N, 3, H, W) float in [0, 1], frames 0 .. N-1 in order
+    mask : (N, 1, H, W) or None; pair (t, t+1) uses the union (max) of the two frames' masks
+
+    Returns
+    -------
+    (N - 1,) float64 pixels: ``mean |F_R - F_I|``; NaN for an empty mask; empty when N < 2
+    """
+    pred, target, mask = _check_images(pred, target, mask)
+    d = (optical_flow(pred) - optical_flow(target)).to(pred.device)
+    pair_mask = None if mask is None else torch.maximum(mask[1:], mask[:-1])
+    return _masked_mean(d.abs(), pair_mask)
+
+
 def summarise(values) -> dict[str, float | int | None]:
     """``{"mean", "std", "n"}`` of the finite values (population std); None when n = 0."""
     a = np.asarray(values, np.float64).ravel()
@@ -385,7 +426,7 @@ class FrameMetrics:
                 self.add("gmsd_masked", gmsd(pred, target, mask))
             if "detail_masked" in want:
                 self.add("detail_masked", detail_ratio(pred, target, mask))
-        if clip is None or not want & {"flicker", "flicker_masked"}:
+        if clip is None or not want & {"flicker", "flicker_masked", "tof_masked"}:
             return
         if clip in self._last:
             p0, t0, m0 = self._last[clip]
@@ -399,6 +440,8 @@ class FrameMetrics:
             self.add("flicker", flicker(pred_s, target_s))
         if mask_s is not None and "flicker_masked" in want:
             self.add("flicker_masked", flicker(pred_s, target_s, mask_s))
+        if mask_s is not None and "tof_masked" in want:
+            self.add("tof_masked", tof(pred_s, target_s, mask_s))
         self._last[clip] = (pred[-1:], target[-1:], None if mask is None else mask[-1:])
 
     def summary(self) -> dict[str, dict[str, float | int | None]]:
