@@ -56,6 +56,7 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable
 
+import cv2  # opencv-python-headless: the optical flow of tOF
 import numpy as np
 import torch
 from torch.nn import functional as F
@@ -329,8 +330,6 @@ def flicker(
 def optical_flow(frames: torch.Tensor) -> torch.Tensor:
     """Farneback flow from each frame to the next (:data:`FARNEBACK`), on 8-bit luminance:
     frames (N, 3, H, W) in [0, 1] -> (N - 1, 2, H, W) float64 pixels (x, y)."""
-    import cv2  # opencv-python-headless
-
     gray = (luminance(torch.as_tensor(frames).double()).clamp(0, 1) * 255).round()
     gray = gray[:, 0].to(torch.uint8).cpu().numpy()
     flows = [cv2.calcOpticalFlowFarneback(a, b, None, *FARNEBACK) for a, b in zip(gray, gray[1:])]
