@@ -322,7 +322,12 @@ def flicker(
     empty when N < 2
     """
     pred, target, mask = _check_images(pred, target, mask)
-    d = (pred[1:] - pred[:-1]) - (target[1:] - target[:-1])
+    return _pair_mean((pred[1:] - pred[:-1]) - (target[1:] - target[:-1]), mask)
+
+
+def _pair_mean(d: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Mean |d| of each consecutive pair's (N - 1, C, H, W) difference, over the union (max) of
+    the pair's two (N, 1, H, W) masks (or every pixel): (N - 1,) float64."""
     pair_mask = None if mask is None else torch.maximum(mask[1:], mask[:-1])
     return _masked_mean(d.abs(), pair_mask)
 
@@ -351,9 +356,7 @@ def tof(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = No
     (N - 1,) float64 pixels: ``mean |F_R - F_I|``; NaN for an empty mask; empty when N < 2
     """
     pred, target, mask = _check_images(pred, target, mask)
-    d = (optical_flow(pred) - optical_flow(target)).to(pred.device)
-    pair_mask = None if mask is None else torch.maximum(mask[1:], mask[:-1])
-    return _masked_mean(d.abs(), pair_mask)
+    return _pair_mean((optical_flow(pred) - optical_flow(target)).to(pred.device), mask)
 
 
 def summarise(values) -> dict[str, float | int | None]:
