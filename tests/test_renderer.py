@@ -16,10 +16,14 @@ from tests.conftest import assert_close
 from training.losses import (
     VGG19_CHANNELS,
     _tap_indices,
+    detail_energy,
+    detail_energy_l1,
     feature_matching,
     gan_d_loss,
     gan_g_loss,
+    laplacian_bands,
     load_perceptual,
+    pyramid_l1,
     vgg_features,
 )
 from training.renderer import (
@@ -119,6 +123,54 @@ def test_paper_latent_and_ablation_without_motion():
     assert torch.equal(x[:, -1:], mask)
     rgb, _ = net(uv, None, mask, uv, None, mask, torch.rand(1, 3, 8, 8))
     assert rgb.shape == (1, 3, 8, 8)
+
+
+def test_texture_readout_draws_the_texture_on_the_proxy_and_nothing_off_it():
+    torch.manual_seed(0)
+    cfg = PRESETS["tiny"]
+    assert cfg.texture_readout and not PRESETS["paper"].texture_readout
+    net = RenderNet(cfg).eval()
+    uv, motion, mask = _inputs(cfg, 1, 8)
+    bg = torch.rand(1, 3, 8, 8)
+    with torch.no_grad():
+        x = net.input_features(uv, motion, mask)
+        z, skips = net.encode_with_skips(x)
+        # the readout rides last with the skips: RGB and alpha logits, zero off the proxy
+        assert len(skips) == cfg.n_down + 1 and skips[-1].shape == (1, 4, 8, 8)
+        assert float((skips[-1] * (1 - mask)).abs().max()) == 0.0
+        before, _ = net.decode(z, z, bg, skips)
+        # a readout that turns the texture's first channel into red: the proxy turns redder,
+        # by as much as the logit moved, and off the proxy nothing changes
+        net.readout.weight.zero_()
+        net.readout.weight[0, 0] = 1.0
+        net.texture.levels[0].fill_(3.0)
+        x = net.input_features(uv, motion, mask)
+        z, skips = net.encode_with_skips(x)
+        red, _ = net.decode(z, z, bg, skips)
+        net.readout.weight.zero_()
+        z, skips = net.encode_with_skips(x)
+        plain, _ = net.decode(z, z, bg, skips)
+    on = mask[0, 0] > 0
+    assert (red[0, 0][on] > plain[0, 0][on]).all()
+    assert torch.equal(red[0, 1:], plain[0, 1:]) and torch.equal(red[0, 0][~on], plain[0, 0][~on])
+    assert before.shape == red.shape
+    with pytest.raises(ValueError, match="texture out"):
+        net.decode(z, z, bg, None)
+    # its alpha carves the proxy: a large negative alpha logit shows the background there
+    with torch.no_grad():
+        net.readout.weight[3, 0] = -1000.0
+        z, skips = net.encode_with_skips(x)
+        carved, _ = net.decode(z, z, bg, skips)
+    assert_close(carved[0][:, on], bg[0][:, on], atol=1e-6, what="the background on the proxy")
+    without_blend = RenderNet(cfg.replace(blend_output=False))
+    assert without_blend.readout.out_channels == 3
+
+
+def test_model_files_from_before_the_readout_load_without_one():
+    stored = {k: v for k, v in PRESETS["tiny"].to_dict().items() if k != "texture_readout"}
+    assert RendererConfig.from_stored(stored).texture_readout is False
+    assert RendererConfig.from_stored(PRESETS["tiny"].to_dict()).texture_readout is True
+    assert RenderNet(RendererConfig.from_stored(stored)).readout is None
 
 
 def test_without_temporal_conditioning_frame_t_minus_1_changes_nothing():
@@ -229,6 +281,49 @@ def test_gpu_motion_maps_match_cpu(rng):
 
 
 # -- losses ----------------------------------------------------------------------------------------
+
+
+def _stripes(size: int = 32) -> torch.Tensor:
+    """(1, 3, size, size): dark and light rows 2 px apart (a frill tier's edges), in [0.2, 0.8]."""
+    rows = (torch.arange(size) // 2 % 2).float() * 0.6 + 0.2
+    return rows.view(1, 1, size, 1).expand(1, 3, size, size).clone()
+
+
+def _blurred(x: torch.Tensor) -> torch.Tensor:
+    return torch.nn.functional.avg_pool2d(
+        torch.nn.functional.pad(x, (1, 1, 1, 1), mode="replicate"), 3, 1
+    )
+
+
+def test_pyramid_l1_sees_detail_and_not_colour():
+    x = _stripes()
+    bands = laplacian_bands(x)
+    assert [b.shape[-1] for b in bands] == [32, 16, 8]
+    assert float(pyramid_l1(x, x)) == 0.0
+    # a constant offset is a colour (L1's business), not detail
+    assert float(pyramid_l1(x + 0.1, x)) < 1e-6
+    # a blurred copy loses the stripes, a shifted copy moves them, a flat one has none
+    blur, shift, flat = _blurred(x), torch.roll(x, 1, 2), torch.full_like(x, 0.5)
+    assert 0 < float(pyramid_l1(blur, x)) < float(pyramid_l1(flat, x))
+    assert float(pyramid_l1(shift, x)) > float(pyramid_l1(blur, x))
+    # on the stripes' band, more than plain L1 charges for the blur
+    l1 = torch.nn.functional.l1_loss
+    assert float(pyramid_l1(blur, x)) > float(l1(blur, x))
+
+
+def test_detail_energy_counts_detail_wherever_it_lies():
+    x = _stripes()
+    e = detail_energy(x)
+    assert e.shape == (1, 1, 4, 4)
+    # luminance of grey stripes: |Laplacian| 0.6 on every row (each has one neighbour unlike it)
+    assert_close(e[..., 1:-1, :], torch.full_like(e[..., 1:-1, :], 0.6), atol=1e-6, what="energy")
+    assert float(detail_energy_l1(x, x)) == 0.0
+    # moved by a row the energy is the same away from the image's edge: no charge there
+    shifted = detail_energy(torch.roll(x, 1, 2))
+    assert_close(shifted[..., 1:-1, :], e[..., 1:-1, :], atol=1e-6, what="moved stripes")
+    blur, flat = _blurred(x), torch.full_like(x, 0.5)
+    assert 0 < float(detail_energy_l1(blur, x)) < float(detail_energy_l1(flat, x))
+    assert_close(detail_energy_l1(flat, x), e.mean(), atol=1e-6, what="all detail missing")
 
 
 def test_gan_and_feature_matching_losses():

@@ -177,3 +177,33 @@ def test_png_writing(tmp_path):
         write_png(tmp_path / "b.png", rgb.astype(np.float32))
     sheet = contact_sheet([rgb, mask], ["rgb", "mask"])
     assert sheet.dtype == np.uint8 and sheet.shape[1] > 2 * 12 and sheet.shape[2] == 3
+
+
+def test_a_thin_layer_gives_partial_coverage_not_speckles():
+    # A strip 0.4 px thick seen face-on, slanted by 2 px over the image's width, over the plain
+    # background: one ray per pixel centre catches it in some columns and misses it in others (a
+    # dashed line, the speckles of a thin layer); 3 x 3 rays per pixel see it in every column,
+    # as pixels partly covered and partly coloured.
+    cam = make_camera((0, 0, 2), (0, 0, 0), width=32, height=32, fov_y_deg=40)
+    px = 2 * 2 * np.tan(np.radians(20)) / 32  # metres per pixel at the strip's depth
+    x0, x1, t = -1.0, 1.0, 0.4 * px
+    slope = 2 * px / (32 * px)
+    verts = np.array(
+        [[x0, 0.3 * px + slope * x0, 0], [x1, 0.3 * px + slope * x1, 0],
+         [x1, 0.3 * px + slope * x1 + t, 0], [x0, 0.3 * px + slope * x0 + t, 0]],
+        np.float32,
+    )  # fmt: skip
+    strip = Mesh(verts, np.array([[0, 1, 2], [0, 2, 3]], np.int64))
+    flat = to_uint8(np.asarray(ShadingConfig().background)).astype(int)
+    hard = render_ground_truth(strip, None, cam, ShadingConfig(supersample=1))
+    soft = render_ground_truth(strip, None, cam, ShadingConfig(supersample=3))
+    per_column_hard = hard.coverage.sum(0)
+    per_column_soft = soft.coverage.sum(0)
+    assert (per_column_hard == 0).any() and (per_column_hard > 0).any()  # dashed
+    assert (per_column_soft > 0).all()  # continuous
+    assert np.abs(per_column_soft - 0.4).max() <= 1 / 3 + 1e-6  # 0.4 px, to a sample row
+    partial = (soft.coverage > 0) & (soft.coverage < 1)
+    assert partial.any(0).all()  # every column is partly covered, none fully
+    assert (soft.coverage < 1).all()
+    changed = np.abs(soft.image.astype(int) - flat).sum(-1) > 0
+    assert changed.any(0).all()  # the strip's colour shows in every column

@@ -1,4 +1,6 @@
-"""Losses of the neural renderer: L1, VGG19 perceptual, GAN (hinge or LSGAN), feature matching.
+"""Losses of the neural renderer: L1, VGG19 perceptual, GAN (hinge or LSGAN), feature matching,
+and two that need no weights and ask for fine detail: a Laplacian-pyramid L1 and a local
+detail-energy L1.
 
 The perceptual loss needs VGG19 weights, which cannot be downloaded here: give the path of a
 torchvision-layout state dict (``torchvision.models.vgg19().state_dict()`` saved with
@@ -166,3 +168,68 @@ def feature_matching(fake: Sequence[torch.Tensor], real: Sequence[torch.Tensor])
     for a, b in zip(fake, real):
         loss = loss + F.l1_loss(a, b.detach())
     return loss / max(len(fake), 1)
+
+
+#: 5-tap binomial filter of the Laplacian pyramid (Burt and Adelson 1983).
+BINOMIAL5 = (1 / 16, 4 / 16, 6 / 16, 4 / 16, 1 / 16)
+#: Levels of :func:`pyramid_l1`: the bands of 1-2, 2-4 and 4-8 px at full resolution.
+PYRAMID_LEVELS = 3
+#: Window (pixels) of :func:`detail_energy_l1`'s local energy.
+DETAIL_WINDOW = 8
+_LUMA = (0.299, 0.587, 0.114)
+
+
+def _blur(x: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) -> the same, blurred by the separable binomial filter (edges replicated)."""
+    c = x.shape[1]
+    k = torch.tensor(BINOMIAL5, dtype=x.dtype, device=x.device)
+    x = F.pad(x, (2, 2, 2, 2), mode="replicate")
+    x = F.conv2d(x, k.view(1, 1, 1, 5).expand(c, 1, 1, 5), groups=c)
+    return F.conv2d(x, k.view(1, 1, 5, 1).expand(c, 1, 5, 1), groups=c)
+
+
+def laplacian_bands(x: torch.Tensor, levels: int = PYRAMID_LEVELS) -> list[torch.Tensor]:
+    """The band-pass levels of a Laplacian pyramid: (B, C, H, W) -> ``levels`` tensors, the k-th
+    (B, C, H / 2**k, W / 2**k): the image at that scale less its blur (sides halved by 2 x 2
+    averages, rounding down)."""
+    out = []
+    for _ in range(levels):
+        low = _blur(x)
+        out.append(x - low)
+        x = F.avg_pool2d(low, 2)
+    return out
+
+
+def pyramid_l1(pred: torch.Tensor, target: torch.Tensor, levels: int = PYRAMID_LEVELS):
+    """Sum over the pyramid's levels of the mean L1 between the two images' bands (Lap1,
+    Bojanowski et al. 2018, with every band weighted alike): (B, C, H, W) twice -> scalar.
+
+    Plain L1 is dominated by the flat colours; this counts each band of detail as much as the
+    image's, so misplaced or missing edges cost as much as a wrong colour. A constant offset
+    costs nothing here (L1 sees it)."""
+    return sum(
+        F.l1_loss(a, b)
+        for a, b in zip(laplacian_bands(pred, levels), laplacian_bands(target, levels))
+    )
+
+
+def detail_energy(images: torch.Tensor, window: int = DETAIL_WINDOW) -> torch.Tensor:
+    """Local fine-detail energy: (B, 3, H, W) in [0, 1] -> (B, 1, H / window, W / window), the
+    mean |Laplacian| (4-neighbour) of the luminance over each window (edges replicated)."""
+    w = torch.tensor(_LUMA, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
+    y = F.pad((images * w).sum(1, keepdim=True), (1, 1, 1, 1), mode="replicate")
+    lap = (
+        y[..., :-2, 1:-1]
+        + y[..., 2:, 1:-1]
+        + y[..., 1:-1, :-2]
+        + y[..., 1:-1, 2:]
+        - 4 * y[..., 1:-1, 1:-1]
+    )
+    return F.avg_pool2d(lap.abs(), window)
+
+
+def detail_energy_l1(pred: torch.Tensor, target: torch.Tensor, window: int = DETAIL_WINDOW):
+    """Mean L1 between the two images' :func:`detail_energy` maps -> scalar: as much fine detail
+    as the target in each window, wherever in it the detail lies. Per-pixel losses pay a blur
+    where an edge's place is uncertain; this one charges for the detail the blur removed."""
+    return F.l1_loss(detail_energy(pred, window), detail_energy(target, window))

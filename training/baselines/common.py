@@ -104,6 +104,10 @@ class BaselineConfig(PlainConfig):
     """GAN loss: ``lsgan`` or ``hinge``."""
     w_l1: float = 10.0
     """Weight of the L1 loss to the ground truth at frame t."""
+    w_pyramid: float = 0.0
+    """Weight of the Laplacian-pyramid L1 (as the renderer's; 0: the baselines' own losses)."""
+    w_detail: float = 0.0
+    """Weight of the local detail-energy L1 (as the renderer's; 0: off)."""
     w_gan: float = 0.0
     """Weight of the generator's GAN loss (0 and no discriminator for L1-only baselines)."""
     w_fm: float = 0.0
@@ -163,7 +167,16 @@ class BaselineConfig(PlainConfig):
             )
         if self.gan_mode not in GAN_MODES:
             raise InputError(f"gan_mode must be one of {GAN_MODES}, got {self.gan_mode!r}")
-        for name in ("w_l1", "w_gan", "w_fm", "w_perceptual", "lr_g", "lr_d"):
+        for name in (
+            "w_l1",
+            "w_pyramid",
+            "w_detail",
+            "w_gan",
+            "w_fm",
+            "w_perceptual",
+            "lr_g",
+            "lr_d",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"{self.kind} config {name}={v!r} must be a finite number >= 0")

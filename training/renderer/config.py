@@ -56,6 +56,12 @@ class RendererConfig(PlainConfig):
     """U-Net skips from the encoder (frame t) to the decoder at every scale. Not in the paper
     (its decoder starts from the 16 x 16 latent alone); with a few thousand CPU steps they give
     the folds their sharpness. The ``paper`` preset turns them off."""
+    texture_readout: bool = True
+    """A 1 x 1 conv from frame t's texture sample straight to the RGB logits, beside the
+    refinement's (192 weights). Without it the frill tiers reached the image only through the
+    encoder, decoder and refinement, too slowly for a few hundred steps: the garment's detail on
+    validation was 0.49 of the ground truth's (docs/decisions.md, "texture_readout"). Not in the
+    paper; off in the ``paper`` preset."""
     blend_output: bool = True
     """Blend the final RGB with the background image by a predicted alpha, so the body off the
     garment is exact instead of a learned copy. Not in the paper; off in the ``paper`` preset."""
@@ -75,6 +81,16 @@ class RendererConfig(PlainConfig):
     """Conv widths of the VGG (0 = max pool) when not VGG19's; empty means VGG19. For tests."""
     w_l1: float = 10.0
     """Weight of L1 (the paper: 10 x (L1 + perceptual))."""
+    w_pyramid: float = 20.0
+    """Weight of the Laplacian-pyramid L1 (:func:`training.losses.pyramid_l1`): every band of
+    detail counted as much as the colours. With ``w_detail`` it stands in for the paper's
+    perceptual loss (no weights here); chosen on the validation motion (docs/decisions.md,
+    "w_pyramid, w_detail"). Not in the paper; 0 in the ``paper`` preset."""
+    w_detail: float = 10.0
+    """Weight of the local detail-energy L1 (:func:`training.losses.detail_energy_l1`): as much
+    fine detail as the ground truth in each 8 px window, wherever in it. The per-pixel losses
+    alone drew a blur where a tier's edge is uncertain (detail 0.61 of the ground truth's on
+    validation, 0.83 with this). Not in the paper; 0 in the ``paper`` preset."""
     w_perceptual: float = 10.0
     """Weight of the perceptual loss."""
     w_fm: float = 5.0
@@ -163,7 +179,10 @@ class RendererConfig(PlainConfig):
             raise InputError(f"gan_mode must be one of {GAN_MODES}, got {self.gan_mode!r}")
         if any(not isinstance(c, int) or c < 0 for c in self.vgg_channels):
             raise InputError(f"vgg_channels={self.vgg_channels!r} must be integers >= 0")
-        for name in ("w_l1", "w_perceptual", "w_fm", "w_gan", "w_texture", "lr_g", "lr_d"):
+        for name in (
+            "w_l1", "w_pyramid", "w_detail", "w_perceptual", "w_fm", "w_gan", "w_texture",
+            "lr_g", "lr_d",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"renderer config {name}={v!r} must be a finite number >= 0")
@@ -186,6 +205,20 @@ class RendererConfig(PlainConfig):
             old = data.pop("mixed_precision")
             data.setdefault("precision", "auto" if old else "fp32")
         return super().from_dict(data)
+
+    @classmethod
+    def from_stored(cls, data: dict) -> RendererConfig:
+        """The config of a model file or bundle: fields added since read as the files were
+        trained: before ``lr_decay_from`` at constant rates (1.0), before ``adam_eps`` at
+        torch's 1e-8, before ``texture_lr_scale`` at one rate, before ``texture_readout``
+        without one."""
+        old = {
+            "lr_decay_from": 1.0,
+            "adam_eps": 1e-8,
+            "texture_lr_scale": 1.0,
+            "texture_readout": False,
+        }
+        return cls.from_dict({**old, **data})
 
     def resolved_precision(self, device_type: str) -> str:
         """``fp32``, ``bf16`` or ``fp16`` on a device of this type (``cpu``, ``cuda``)."""
@@ -224,7 +257,10 @@ PRESETS: dict[str, RendererConfig] = {
         image_size=512,
         texture_sizes=(512, 256, 128, 64),
         skip_connections=False,
+        texture_readout=False,
         blend_output=False,
+        w_pyramid=0.0,
+        w_detail=0.0,
         lr_g=1e-4,
         lr_decay_from=1.0,
         texture_lr_scale=1.0,

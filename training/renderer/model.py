@@ -14,6 +14,14 @@ concatenate the motion features (:meth:`RenderNet.input_features`), encode frame
 - The SPADE block normalises each latent cell over its channels (positional normalisation)
   instead of batch statistics: the result does not depend on the batch, the crop or the other
   frames, so batch-1 streaming and batch training agree.
+- With ``texture_readout`` a 1 x 1 conv (no bias: zero off the proxy) reads frame t's texture
+  sample straight into the last layer's logits (RGB, and the alpha of the blend with the
+  background, which carves the gaps between tiers out of the proxy's silhouette), beside the
+  refinement's: the texture's detail reaches the
+  image in one layer, as in DNR, not only through the encoder, decoder and refinement, which in a
+  few hundred steps learned it too slowly to draw the frill tiers (docs/decisions.md,
+  "texture_readout"). It travels with the encoder's skips, as their last entry, so every caller
+  of :meth:`RenderNet.encode_with_skips` and :meth:`RenderNet.decode` carries it unchanged.
 """
 
 from __future__ import annotations
@@ -245,8 +253,18 @@ class Refiner(nn.Module):
             with torch.no_grad():
                 self.to_rgb.bias[3] = -2.0
 
-    def forward(self, x: torch.Tensor, background: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self,
+        x: torch.Tensor,
+        background: torch.Tensor | None = None,
+        readout: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """x (B, F, H, W), background (B, 3, H, W), readout (B, 3 or 4, H, W) logits added to the
+        last layer's (the texture readout: RGB, and alpha with ``blend_output``) or None ->
+        (B, 3, H, W) in (0, 1)."""
         out = self.to_rgb(F.leaky_relu(self.blocks(x), _SLOPE))
+        if readout is not None:
+            out = out + readout
         if not self.blend_output:
             return torch.sigmoid(out)
         alpha = torch.sigmoid(out[:, 3:4])
@@ -279,6 +297,11 @@ class RenderNet(nn.Module):
             nn.Conv2d(config.background_width, config.decoder_features, 3, 1, 1),
         )
         self.refiner = Refiner(config.decoder_features, config.blend_output)
+        self.readout = (
+            nn.Conv2d(config.texture_out_channels, 4 if config.blend_output else 3, 1, bias=False)
+            if config.texture_readout
+            else None
+        )
 
     @property
     def stride(self) -> int:
@@ -302,9 +325,14 @@ class RenderNet(nn.Module):
         return self.encoder(x)
 
     def encode_with_skips(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """Step 2 for the frame being rendered: the latent and the encoder's finer activations
-        (full resolution first; what the decoder's skip connections take)."""
-        return self.encoder(x, skips=True)
+        """Step 2 for the frame being rendered: the latent and what the decoder takes of this
+        frame: the encoder's finer activations (full resolution first; the skip connections'),
+        then, with ``texture_readout``, the texture sample's readout (B, 3, H, W) RGB logits, and
+        an alpha logit fourth with ``blend_output``."""
+        z, skips = self.encoder(x, skips=True)
+        if self.readout is not None:
+            skips = [*skips, self.readout(x[:, : self.config.texture_out_channels])]
+        return z, skips
 
     def decode(
         self,
@@ -317,13 +345,18 @@ class RenderNet(nn.Module):
 
         rgb (B, 3, H, W) in (0, 1); A (B, 1, H, W) the garment mask of the blend. ``skips``
         (frame t's, from :meth:`encode_with_skips`) are needed when the config has
-        ``skip_connections``.
+        ``skip_connections`` or ``texture_readout``.
         """
         if not self.config.use_temporal:  # the ablation: nothing of frame t-1 reaches SPADE
             z_prev = torch.zeros_like(z)
+        readout = None
+        if self.readout is not None:
+            if skips is None:
+                raise ValueError("this renderer reads its texture out: pass the encoder's skips")
+            readout = skips[-1]
         u, a = self.decoder(self.spade(z, z_prev), skips)
         bg = self.background_net(background * 2 - 1)
-        return self.refiner((1 - a) * bg + a * u, background), a
+        return self.refiner((1 - a) * bg + a * u, background, readout), a
 
     def forward(
         self,
@@ -359,12 +392,14 @@ class RenderNet(nn.Module):
 
 def background_finetune_parameters(net: RenderNet) -> list[str]:
     """Names of the parameters background / lighting fine-tuning trains (the rest is frozen):
-    the last decoder up-stage, the decoder heads and the refinement blocks."""
+    the last decoder up-stage, the decoder heads, the refinement blocks and the texture
+    readout (the layers that make the image's colours)."""
     prefixes = (
         f"decoder.ups.{len(net.decoder.ups) - 1}.",
         "decoder.features_head.",
         "decoder.mask_head.",
         "refiner.",
+        "readout.",
     )
     return [n for n, _ in net.named_parameters() if n.startswith(prefixes)]
 

@@ -54,7 +54,8 @@ MODEL_NAME = "renderer.pt"
 LOG_NAME = "renderer_loss.csv"
 PREVIEW_DIR = "previews"
 LOG_COLUMNS = (
-    "step", "epoch", "loss_g", "l1", "perceptual", "fm", "gan_g", "loss_d", "skipped", "seconds",
+    "step", "epoch", "loss_g", "l1", "pyramid", "detail", "perceptual", "fm", "gan_g", "loss_d",
+    "skipped", "seconds",
 )  # fmt: skip
 #: What a run trains: everything, or (background fine-tuning) the last decoder layers, the
 #: refinement blocks and the discriminator.
@@ -116,12 +117,7 @@ def load_model(
         CHECKPOINT_FORMAT,
     ):
         raise InputError(f"not a renderer model ({MODEL_FORMAT})", path)
-    # Files written before ``lr_decay_from`` existed were trained at constant rates: they read
-    # as 1.0, so a fine-tune that starts from one keeps its schedule; before ``adam_eps``, at
-    # torch's 1e-8; before ``texture_lr_scale``, at one rate.
-    config = RendererConfig.from_dict(
-        {"lr_decay_from": 1.0, "adam_eps": 1e-8, "texture_lr_scale": 1.0, **payload["config"]}
-    )
+    config = RendererConfig.from_stored(payload["config"])
     net = RenderNet(config)
     try:
         net.load_state_dict(payload["generator"])
@@ -138,7 +134,7 @@ def _architecture(config: RendererConfig) -> dict:
     keep = (
         "texture_sizes", "texture_channels", "motion_channels", "use_motion", "base_width",
         "max_width", "n_down", "decoder_features", "background_width", "disc_width",
-        "skip_connections", "blend_output", "use_temporal",
+        "skip_connections", "blend_output", "use_temporal", "texture_readout",
     )  # fmt: skip
     d = config.to_dict()
     return {k: d[k] for k in keep}

@@ -108,7 +108,7 @@ class TorchPlayer:
             j2c = j2c.to_torch()
         follow = j2c.follow_weights()  # a host copy: read before the move to the device
         self.joint2coarse = j2c.to(dev).eval().requires_grad_(False)
-        config = RendererConfig.from_dict({"lr_decay_from": 1.0, **data["renderer"]["config"]})
+        config = RendererConfig.from_stored(data["renderer"]["config"])
         self.net = RenderNet(config)
         self.net.load_state_dict(data["renderer"]["generator"])
         self.net = self.net.to(dev).eval().requires_grad_(False)
