@@ -697,6 +697,8 @@ def _renderer_markdown(report: dict) -> list[str]:
         f"{'on' if r['perceptual'] else 'off: no VGG19 weights file'}; "
         f"{r['skipped_steps']} steps skipped by the NaN guard). "
         f"Loss {cfg['w_l1']:g} L1"
+        + (f" + {cfg['w_pyramid']:g} Laplacian pyramid" if cfg.get("w_pyramid") else "")
+        + (f" + {cfg['w_detail']:g} detail energy" if cfg.get("w_detail") else "")
         + (f" + {cfg['w_perceptual']:g} perceptual" if r["perceptual"] else "")
         + f" + {cfg['w_fm']:g} feature matching + {cfg['w_gan']:g} GAN; "
         f"Adam {cfg['lr_g']:g} (network) and {cfg['lr_d']:g} (discriminator), "

@@ -283,10 +283,11 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
         add(
             "renderer",
             "the texture reaches the image through the network alone",
-            "also through a 1 x 1 conv from frame t's texture sample to the RGB logits",
+            "also through a 1 x 1 conv from frame t's texture sample to the last layer's RGB "
+            "and alpha logits",
             "without it the frill tiers came through too slowly for a few hundred steps: the "
-            "garment's detail on the validation motion was 0.49 of the ground truth's, 0.74 "
-            "with it, 0.55 at twice the steps without it (docs/decisions.md, "
+            "garment's detail on the validation motion was 0.49 of the ground truth's, 0.55 at "
+            "twice the steps, 0.74 with a readout of the RGB alone (docs/decisions.md, "
             '"texture_readout")',
         )
     if r.blend_output:
@@ -329,7 +330,7 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             + " beside L1 (`pyramid_l1`, `detail_energy_l1` in training/losses.py)",
             "they stand in for the perceptual loss and the GAN, which sharpen the paper's "
             "renders but have no weights here or do not pay at 600 steps; chosen on the "
-            'validation motion (docs/decisions.md, "w_pyramid, w_detail")',
+            'validation motion (docs/decisions.md, "texture_readout")',
         )
     weights = {k: getattr(r, k) for k in PAPER_LOSS}
     if weights != PAPER_LOSS:

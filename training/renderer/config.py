@@ -85,7 +85,7 @@ class RendererConfig(PlainConfig):
     """Weight of the Laplacian-pyramid L1 (:func:`training.losses.pyramid_l1`): every band of
     detail counted as much as the colours. With ``w_detail`` it stands in for the paper's
     perceptual loss (no weights here); chosen on the validation motion (docs/decisions.md,
-    "w_pyramid, w_detail"). Not in the paper; 0 in the ``paper`` preset."""
+    "texture_readout"). Not in the paper; 0 in the ``paper`` preset."""
     w_detail: float = 10.0
     """Weight of the local detail-energy L1 (:func:`training.losses.detail_energy_l1`): as much
     fine detail as the ground truth in each 8 px window, wherever in it. The per-pixel losses
