@@ -593,6 +593,34 @@ def run_demo(
     return report
 
 
+def joint2coarse_physics_markdown(j: dict) -> list[str]:
+    """The unseen motions' physics beside the distance: penetration of the body's capsules and
+    edge stretch, of the prediction, the prediction pushed out and the simulation, with the
+    inference times (``-`` for a project made before a figure existed)."""
+    lines = [
+        "| unseen motion | penetration mean / max (mm) | penetrating vertices | with push-out | "
+        "simulation | stretch p99 / max | with push-out | simulation | batch inference "
+        "(ms/frame) | streaming (ms/frame, median / p95) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+
+    def stretch(d: dict | None) -> str:
+        return f"{d['p99']:.3f} / {d['max']:.3f}" if d else "-"
+
+    for name, m in j["motions"].items():
+        p, q = m["penetration_mm"], m["with_push_out"]["penetration_mm"]
+        s = m.get("simulation_penetration_mm")
+        sim = f"{s['mean']:.2f} / {s['max']:.1f} ({s['fraction']:.1%})" if s else "-"
+        lines.append(
+            f"| `{name}` | {p['mean']:.2f} / {p['max']:.1f} | {p['fraction']:.1%} | "
+            f"{q['mean']:.2f} / {q['max']:.1f} ({q['fraction']:.1%}) | {sim} | "
+            f"{stretch(m.get('stretch'))} | {stretch(m['with_push_out'].get('stretch'))} | "
+            f"{stretch(m.get('simulation_stretch'))} | "
+            f"{m['batch_ms_per_frame']:.3f} | {_stream_ms(m)} |"
+        )
+    return lines
+
+
 def joint2coarse_splits_markdown(j: dict) -> list[str]:
     """The splits, and every model's mean / p95 vertex error (mm) per validation and test
     motion, side by side (the project's model first, then ``compare``)."""
@@ -974,21 +1002,7 @@ def report_markdown(report: dict) -> str:
                 f"| unseen `{name}` ({m['frames']} frames){label} | {e['mean_mm']:.1f} | "
                 f"{e['p95_mm']:.1f} | {e['max_mm']:.1f} |"
             )
-    lines += [
-        "",
-        "| unseen motion | penetration mean / max (mm) | penetrating vertices | with push-out | "
-        "simulation | batch inference (ms/frame) | streaming (ms/frame, median / p95) |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for name, m in j["motions"].items():
-        p, q = m["penetration_mm"], m["with_push_out"]["penetration_mm"]
-        s = m.get("simulation_penetration_mm")
-        sim = f"{s['mean']:.2f} / {s['max']:.1f} ({s['fraction']:.1%})" if s else "-"
-        lines.append(
-            f"| `{name}` | {p['mean']:.2f} / {p['max']:.1f} | {p['fraction']:.1%} | "
-            f"{q['mean']:.2f} / {q['max']:.1f} ({q['fraction']:.1%}) | {sim} | "
-            f"{m['batch_ms_per_frame']:.3f} | {_stream_ms(m)} |"
-        )
+    lines += ["", *joint2coarse_physics_markdown(j)]
     lines += ["", "Side by side (simulation above, prediction below):", ""]
     lines += [f"![{name}](joint2coarse/compare-{name}.png)" for name in j["motions"]]
     lines += _renderer_markdown(report)

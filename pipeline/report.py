@@ -12,7 +12,12 @@ from pathlib import Path
 
 from core.errors import InputError
 from core.fileio import atomic_path
-from pipeline.demo import joint2coarse_splits_markdown, metrics_table, ratio_sentence
+from pipeline.demo import (
+    joint2coarse_physics_markdown,
+    joint2coarse_splits_markdown,
+    metrics_table,
+    ratio_sentence,
+)
 from pipeline.deviations import deviations_markdown, from_json, methods_markdown
 
 #: The page's sections, in order: ``(anchor, heading)``. The README links to these anchors; a
@@ -179,7 +184,18 @@ def _joint2coarse_markdown(report: dict) -> list[str]:
         "clips; the other column is the paper's model trained beside it.",
         "",
     ]
-    return lines + joint2coarse_splits_markdown(j)
+    lines += joint2coarse_splits_markdown(j)
+    if j.get("motions"):
+        lines += [
+            "",
+            "Physics beside the distance, on the unseen motions: how deep and how often the "
+            "proxy is inside the body's capsules, and its edges' stretch against the proxy's "
+            "rest shape (p99 and max over every edge and frame), for the prediction as it "
+            "comes, pushed out of the body, and the simulation.",
+            "",
+            *joint2coarse_physics_markdown(j),
+        ]
+    return lines
 
 
 def _renderer_markdown(report: dict) -> list[str]:

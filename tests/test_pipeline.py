@@ -66,11 +66,19 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
             assert m["simulation_penetration_mm"]["max"] >= 0.0
             pushed, raw = m["with_push_out"]["penetration_mm"], m["penetration_mm"]
             assert pushed["fraction"] <= raw["fraction"] and pushed["max"] <= raw["max"]
+            # physics beside the distance: the edges' stretch of prediction and simulation
+            for s in (m["stretch"], m["with_push_out"]["stretch"], m["simulation_stretch"]):
+                assert 0.0 <= s["p99"] <= s["max"] < 10.0
     for m in j2c["motions"].values():
         e = m["error_mm"]
         assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]
     md = (out / "report.md").read_text()
     assert "dng demo --preset smoke" in md and "unseen `cmu-01_01`" in md
+    lines = md.splitlines()
+    head = next(i for i, line in enumerate(lines) if "| stretch p99 / max |" in line)
+    rows = lines[head + 2 : head + 4]
+    assert [r.split(" | ")[0] for r in rows] == ["| `twirl`", "| `cmu-01_01`"]
+    assert all("-" not in r.replace(" | ", "|").split("|") for r in rows)  # every figure there
     # The ground truth names its mode, its strain and shows a contact sheet per clip.
     assert "## Ground truth: the detailed target" in md and "embedded in the proxy" in md
     # ... in a proxy kept off the body by the layers beneath it, which its report says

@@ -20,6 +20,7 @@ from core.mesh import Mesh, load_mesh
 from core.project import Project
 from core.shading import contact_sheet, render_views, write_png
 from core.sim import load_cache
+from core.sim.embed import strain_stats
 from pipeline.config import (
     Log,
     PipelineConfig,
@@ -199,7 +200,9 @@ def _evaluate_joint2coarse(
 ) -> dict:
     """Predict a test motion; compare with its simulation, with and without the push-out
     against the body (the capsules the simulation collides with); time the inference; write a
-    side-by-side picture. Penetration is reported for the prediction and the simulation alike."""
+    side-by-side picture. Penetration and stretch (edge strain against the proxy's rest shape,
+    p99 and max over every edge and frame) are reported for the prediction and the simulation
+    alike: a prediction close in millimetres but stretched or inside the body is not close."""
     from training.joint2coarse import (
         Joint2CoarseStream,
         joint2coarse_inputs,
@@ -221,7 +224,8 @@ def _evaluate_joint2coarse(
         stream.push(joints[t], root_rot[t])
         frame_ms.append(1e3 * (time.perf_counter() - start))
     body = make_body(config.body)
-    top = float(load_mesh(project.path("proxy", "positions.obj"))[0].vertices[:, 1].max())
+    rest = load_mesh(project.path("proxy", "positions.obj"))[0].vertices
+    top = float(rest[:, 1].max())
     capsules, radii = simulation_colliders(
         config.body, motion, top, sim_config(config).arm_colliders
     )
@@ -230,6 +234,7 @@ def _evaluate_joint2coarse(
 
     def measured(positions: np.ndarray) -> dict:
         pen = penetration_summary(positions, capsules, radii)
+        strain = strain_stats(positions, rest, reference.faces)
         return {
             "error_mm": asdict(vertex_errors(positions, reference.positions)),
             "penetration_mm": {
@@ -237,6 +242,7 @@ def _evaluate_joint2coarse(
                 "max": pen["max_mm"],
                 "fraction": pen["inside_percent"] / 100.0,
             },
+            "stretch": {"p99": strain.stretch_p99, "max": strain.stretch_max},
         }
 
     if picture:
@@ -250,7 +256,11 @@ def _evaluate_joint2coarse(
         "frames": int(len(pred)),
         **measured(pred),
         "with_push_out": measured(pushed),
-        "simulation_penetration_mm": measured(reference.positions)["penetration_mm"],
+        **{
+            f"simulation_{k}": v
+            for k, v in measured(reference.positions).items()
+            if k in ("penetration_mm", "stretch")
+        },
         **extra,
         "batch_ms_per_frame": ms,
         "streaming_ms_per_frame": {
