@@ -599,13 +599,21 @@ def joint2coarse_physics_markdown(j: dict) -> list[str]:
     inference times (``-`` for a project made before a figure existed)."""
     lines = [
         "| unseen motion | penetration mean / max (mm) | penetrating vertices | with push-out | "
-        "simulation | stretch p99 / max | with push-out | simulation | batch inference "
-        "(ms/frame) | streaming (ms/frame, median / p95) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "simulation | stretch p99 / max | with push-out | simulation | hem radius, mean (mm): "
+        "prediction / simulation | its mean difference (mm) | batch inference (ms/frame) | "
+        "streaming (ms/frame, median / p95) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
 
     def stretch(d: dict | None) -> str:
         return f"{d['p99']:.3f} / {d['max']:.3f}" if d else "-"
+
+    def hem(m: dict) -> tuple[str, str]:
+        r, s = m.get("hem_radius_mm"), m.get("simulation_hem_radius_mm")
+        if not r or not s:
+            return "-", "-"
+        diff = sum(abs(a - b) for a, b in zip(r, s)) / len(r)
+        return f"{sum(r) / len(r):.0f} / {sum(s) / len(s):.0f}", f"{diff:.1f}"
 
     for name, m in j["motions"].items():
         p, q = m["penetration_mm"], m["with_push_out"]["penetration_mm"]
@@ -615,7 +623,7 @@ def joint2coarse_physics_markdown(j: dict) -> list[str]:
             f"| `{name}` | {p['mean']:.2f} / {p['max']:.1f} | {p['fraction']:.1%} | "
             f"{q['mean']:.2f} / {q['max']:.1f} ({q['fraction']:.1%}) | {sim} | "
             f"{stretch(m.get('stretch'))} | {stretch(m['with_push_out'].get('stretch'))} | "
-            f"{stretch(m.get('simulation_stretch'))} | "
+            f"{stretch(m.get('simulation_stretch'))} | {' | '.join(hem(m))} | "
             f"{m['batch_ms_per_frame']:.3f} | {_stream_ms(m)} |"
         )
     return lines

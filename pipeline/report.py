@@ -191,7 +191,9 @@ def _joint2coarse_markdown(report: dict) -> list[str]:
             "Physics beside the distance, on the unseen motions: how deep and how often the "
             "proxy is inside the body's capsules, and its edges' stretch against the proxy's "
             "rest shape (p99 and max over every edge and frame), for the prediction as it "
-            "comes, pushed out of the body, and the simulation.",
+            "comes, pushed out of the body, and the simulation; and the hem's radius (its mean "
+            "distance from the axis through the waist, per frame), the prediction's against the "
+            "simulation's.",
             "",
             *joint2coarse_physics_markdown(j),
         ]

@@ -104,12 +104,15 @@ def test_the_implicit_solvers_reference_halves_its_tolerance(tmp_path, capsys):
 
 def test_hem_statistics_ignore_which_way_a_fold_goes():
     from app.bench.sim import hem_stats_distance
-    from core.sim.sanity import hem_indices
+    from core.sim.sanity import hem_indices, waist_indices
     from tests.sim_helpers import frustum_skirt
 
     skirt = frustum_skirt(16, 6)
     hem = hem_indices(skirt.vertices, skirt.faces)
     waist = np.flatnonzero(skirt.vertices[:, 1] >= skirt.vertices[:, 1].max() - 1e-6)
+    # the waist loop, found as the hem is (the highest boundary loop), is the top ring
+    assert sorted(waist_indices(skirt.vertices, skirt.faces)) == sorted(waist)
+    assert set(hem).isdisjoint(waist) and len(hem) == len(waist) == 16
     run = np.repeat(skirt.vertices[None].astype(np.float64), 3, axis=0)
     assert hem_stats_distance(run, run, hem, waist) == (0.0, 0.0)
     turned = run.copy()  # the hem loop turned about the axis: every vertex moved, nothing else

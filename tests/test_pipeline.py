@@ -69,6 +69,9 @@ def test_smoke_demo_runs_every_stage_and_reports(smoke):
             # physics beside the distance: the edges' stretch of prediction and simulation
             for s in (m["stretch"], m["with_push_out"]["stretch"], m["simulation_stretch"]):
                 assert 0.0 <= s["p99"] <= s["max"] < 10.0
+            # ... and the hem's radius per frame, of both, in millimetres
+            r, sim = np.asarray(m["hem_radius_mm"]), np.asarray(m["simulation_hem_radius_mm"])
+            assert r.shape == sim.shape == (m["frames"],) and (sim > 50).all() and (r > 0).all()
     for m in j2c["motions"].values():
         e = m["error_mm"]
         assert np.isfinite([e["mean_mm"], e["p95_mm"]]).all() and 0 < e["mean_mm"] < e["p95_mm"]

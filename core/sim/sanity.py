@@ -39,6 +39,18 @@ def hem_indices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return min(loops, key=lambda lp: float(v[lp, 1].mean()))
 
 
+def waist_indices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The waist (or a top's neckline): vertex indices (L,) int64 of the boundary loop with the
+    highest mean height; its centroid is a point of the axis :func:`hem_radius` measures from
+    when no pins are known. vertices (V, 3) rest positions, faces (F, 3). ``InputError`` for a
+    closed mesh."""
+    loops = boundary_loops(faces)
+    if not loops:
+        raise InputError("garment has no boundary loop: no waist to measure from")
+    v = np.asarray(vertices, np.float64)
+    return max(loops, key=lambda lp: float(v[lp, 1].mean()))
+
+
 def _centres(positions: np.ndarray, waist: np.ndarray) -> np.ndarray:
     if len(waist) == 0:
         raise InputError("no waist vertices given: the waist's axis is undefined")

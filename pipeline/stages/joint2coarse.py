@@ -21,6 +21,7 @@ from core.project import Project
 from core.shading import contact_sheet, render_views, write_png
 from core.sim import load_cache
 from core.sim.embed import strain_stats
+from core.sim.sanity import hem_indices, hem_radius, waist_indices
 from pipeline.config import (
     Log,
     PipelineConfig,
@@ -200,8 +201,9 @@ def _evaluate_joint2coarse(
 ) -> dict:
     """Predict a test motion; compare with its simulation, with and without the push-out
     against the body (the capsules the simulation collides with); time the inference; write a
-    side-by-side picture. Penetration and stretch (edge strain against the proxy's rest shape,
-    p99 and max over every edge and frame) are reported for the prediction and the simulation
+    side-by-side picture. Penetration, stretch (edge strain against the proxy's rest shape, p99
+    and max over every edge and frame) and the hem's radius per frame (its mean distance from the
+    axis through the waist's centroid, mm) are reported for the prediction and the simulation
     alike: a prediction close in millimetres but stretched or inside the body is not close."""
     from training.joint2coarse import (
         Joint2CoarseStream,
@@ -232,9 +234,12 @@ def _evaluate_joint2coarse(
     pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
     write_npz(out / f"pred-{name}.npz", positions=pred)
 
+    hem, waist = hem_indices(rest, reference.faces), waist_indices(rest, reference.faces)
+
     def measured(positions: np.ndarray) -> dict:
         pen = penetration_summary(positions, capsules, radii)
         strain = strain_stats(positions, rest, reference.faces)
+        radius = 1e3 * hem_radius(positions, hem, waist)
         return {
             "error_mm": asdict(vertex_errors(positions, reference.positions)),
             "penetration_mm": {
@@ -243,6 +248,7 @@ def _evaluate_joint2coarse(
                 "fraction": pen["inside_percent"] / 100.0,
             },
             "stretch": {"p99": strain.stretch_p99, "max": strain.stretch_max},
+            "hem_radius_mm": [round(float(r), 2) for r in radius],
         }
 
     if picture:
@@ -259,7 +265,7 @@ def _evaluate_joint2coarse(
         **{
             f"simulation_{k}": v
             for k, v in measured(reference.positions).items()
-            if k in ("penetration_mm", "stretch")
+            if k in ("penetration_mm", "stretch", "hem_radius_mm")
         },
         **extra,
         "batch_ms_per_frame": ms,
