@@ -20,7 +20,6 @@ from core.mesh import Mesh, load_mesh
 from core.project import Project
 from core.shading import contact_sheet, render_views, write_png
 from core.sim import load_cache
-from core.sim.embed import strain_stats
 from core.sim.sanity import hem_indices, hem_radius, waist_indices
 from pipeline.config import (
     Log,
@@ -205,6 +204,7 @@ def _evaluate_joint2coarse(
     and max over every edge and frame) and the hem's radius per frame (its mean distance from the
     axis through the waist's centroid, mm) are reported for the prediction and the simulation
     alike: a prediction close in millimetres but stretched or inside the body is not close."""
+    from core.sim.embed import strain_stats  # scipy: not at the CLI's import
     from training.joint2coarse import (
         Joint2CoarseStream,
         joint2coarse_inputs,
