@@ -21,6 +21,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from core.errors import InputError
+from training.metrics import laplacian_energy, luminance
 
 #: torchvision's VGG19 ("E") layer list: conv widths, 0 for a 2x2 max pool.
 VGG19_CHANNELS: tuple[int, ...] = (
@@ -176,7 +177,6 @@ BINOMIAL5 = (1 / 16, 4 / 16, 6 / 16, 4 / 16, 1 / 16)
 PYRAMID_LEVELS = 3
 #: Window (pixels) of :func:`detail_energy_l1`'s local energy.
 DETAIL_WINDOW = 8
-_LUMA = (0.299, 0.587, 0.114)
 
 
 def _blur(x: torch.Tensor) -> torch.Tensor:
@@ -216,16 +216,8 @@ def pyramid_l1(pred: torch.Tensor, target: torch.Tensor, levels: int = PYRAMID_L
 def detail_energy(images: torch.Tensor, window: int = DETAIL_WINDOW) -> torch.Tensor:
     """Local fine-detail energy: (B, 3, H, W) in [0, 1] -> (B, 1, H / window, W / window), the
     mean |Laplacian| (4-neighbour) of the luminance over each window (edges replicated)."""
-    w = torch.tensor(_LUMA, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
-    y = F.pad((images * w).sum(1, keepdim=True), (1, 1, 1, 1), mode="replicate")
-    lap = (
-        y[..., :-2, 1:-1]
-        + y[..., 2:, 1:-1]
-        + y[..., 1:-1, :-2]
-        + y[..., 1:-1, 2:]
-        - 4 * y[..., 1:-1, 1:-1]
-    )
-    return F.avg_pool2d(lap.abs(), window)
+    y = F.pad(luminance(images), (1, 1, 1, 1), mode="replicate")
+    return F.avg_pool2d(laplacian_energy(y), window)
 
 
 def detail_energy_l1(pred: torch.Tensor, target: torch.Tensor, window: int = DETAIL_WINDOW):
