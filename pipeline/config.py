@@ -14,6 +14,8 @@ from core.project import Project
 from core.sim import SimConfig
 from pipeline.library import CMU_CLIP, LIBRARY_TRAIN, LIBRARY_VALIDATION, MotionSpec
 
+TARGET_MODES = ("embed", "tiers", "simulate")  #: ``PipelineConfig.target_mode``'s values
+
 
 @dataclass(frozen=True)
 class PipelineConfig:
@@ -58,8 +60,7 @@ class PipelineConfig:
     simulate_target: bool = True
     """Make the detailed target's motion too (needed for ground-truth images)."""
     target_mode: str = "embed"
-    """How the detailed target moves: ``simulate`` it as cloth on the body (the paper's ground
-    truth; slow), or ``embed`` it in the simulated proxy, whose dynamics it follows exactly."""
+    """How the detailed target moves (``TARGET_MODES``): ``simulate`` (cloth), ``embed`` or ``tiers``."""
     layer_thickness: bool = True
     """Keep the simulated proxy off the body by the depth of the target's layers beneath it
     (``core.sim.thickness``), as the layered garment is (docs/decisions.md, "layer_thickness")."""
@@ -124,15 +125,14 @@ class PipelineConfig:
     one as two stages run side by side; same images (docs/decisions.md, "raster_threads")."""
 
     def __post_init__(self) -> None:
+        if self.target_mode not in TARGET_MODES:
+            raise InputError(f"target_mode must be one of {TARGET_MODES}, not {self.target_mode!r}")
         for name, least in (("loader_workers", 0), ("torch_threads", 1), ("raster_threads", 0)):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= least):
                 raise InputError(f"{name} must be an integer >= {least}, got {value!r}")
-        if (
-            self.sim_solver == "implicit"
-            and self.simulate_target
-            and (self.target_mode == "simulate")
-        ):
+        simulated = self.simulate_target and self.target_mode == "simulate"
+        if self.sim_solver == "implicit" and simulated:
             raise InputError(
                 "target_mode='simulate' simulates the target's layers, which the implicit "
                 "solver cannot (a single surface): use sim_solver='style3d' with it"
@@ -215,6 +215,7 @@ PRESETS: dict[str, PipelineConfig] = {
         sim_iterations=16,
         sim_implicit_tol=3.0e-4,
         sim_implicit_norm="rms",
+        target_mode="tiers",  # detail that moves on its own ("target_mode = tiers")
         renderer_steps=600,  # the training L1 is flat from there ("renderer_steps")
         # L1 alone ("renderer_overrides"): without a GAN, "DNR with our loss" is DNR, so the
         # baselines leave it out. Every renderer trains on the predicted proxy ("renderer_source").

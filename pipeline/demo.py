@@ -56,6 +56,8 @@ _SECONDS_PER = {
     # the target bound to the proxy, once for every clip
     "embedding": 30.0,
     "target_frame": 23.0,  # the target simulated as cloth, per frame
+    # the embedded target's tiers simulated on it (and again for the floor), per frame
+    "tiers_frame": 2.0,
     # ground-truth renders per training sample (3 frames) at 128 px
     "gt_sample": 0.25,
     # Joint2Coarse, per step of the paper's model (ours trains first)
@@ -102,21 +104,29 @@ def stage_costs(config: PipelineConfig) -> list[float]:
     def sim(frames: int) -> float:
         return c["sim_clip"] + per_frame * frames
 
-    target = c["embed_frame"] if config.target_mode == "embed" else c["target_frame"]
+    target = c["target_frame"] if config.target_mode == "simulate" else c["embed_frame"]
+    tiered = config.target_mode == "tiers"
+
+    def target_cost(frames: int) -> float:
+        from core.sim.tiers import TierConfig  # scipy: not at the CLI's import
+
+        floor = min(frames, TierConfig.floor_frames)
+        return target * frames + (c["tiers_frame"] * (frames + floor) if tiered else 0.0)
+
     motions = [config.train_motion, *available_extra_motions(config)]
     motions += [*available_validation_motions(config), *tests]
     costs = [c["motion"] * len(motions)] + [c["setup"]] * 2
-    embedded = config.simulate_target and config.target_mode == "embed"
+    embedded = config.simulate_target and config.target_mode != "simulate"
     costs += [c["embedding"]] if embedded else []
     costs += [sim(config.train_motion.frames)]
-    costs += [target * config.train_motion.frames] if config.simulate_target else []
+    costs += [target_cost(config.train_motion.frames)] if config.simulate_target else []
     costs += [sim(m.frames) for m in available_extra_motions(config)]
     costs += [sim(m.frames) for m in available_validation_motions(config)]
     costs += [sim(m.frames) for m in tests]
     validation = renderer_validation_motion(config) if config.simulate_target else None
     checked = [validation] if validation else []  # protocol V
     if config.simulate_target:
-        costs += [target * m.frames for m in [*checked, *tests]]
+        costs += [target_cost(m.frames) for m in [*checked, *tests]]
         train_samples = -(-config.train_motion.frames // config.frame_stride)
         costs += [c["gt_sample"] * pixels * train_samples * config.views_per_frame]
         early, late = _share_sets(config)
@@ -326,7 +336,7 @@ def _simulate_all(
     """
     names = {sim: f"simulate {sim[0]} ({sim[1]})" for sim in sims}
     workers = min(SIM_PROCESSES, os.cpu_count() or 1, len(sims))
-    bind = config.target_mode == "embed" and any(which == "target" for _, which in sims)
+    bind = config.target_mode != "simulate" and any(which == "target" for _, which in sims)
     if workers < 2:
         if bind:
             progress.stage(EMBEDDING_STAGE, lambda: stage_embedding(project, config, progress.log))
@@ -867,8 +877,9 @@ def _ground_truth_markdown(report: dict) -> list[str]:
         "| clip | mode | stretch max / p99 | compression max / p99 | torn edges (stretch > 1) |",
         "| --- | --- | --- | --- | --- |",
     ]
+    modes = {"embed": "embedded in the proxy", "tiers": "embedded, tiers simulated on it"}
     for name, s in targets.items():
-        mode = "embedded in the proxy" if s.get("mode") == "embed" else "simulated"
+        mode = modes.get(s.get("mode"), "simulated")
         if s.get("contact"):
             mode += f", kept {1e3 * s['contact']['margin']:.0f} mm out of the body"
         p99 = s.get("strain_p99")
@@ -878,10 +889,47 @@ def _ground_truth_markdown(report: dict) -> list[str]:
             f"{'-' if p99 is None else f'{p99:.3f}'} | {s.get('compression_max', 0.0):.3f} / "
             f"{'-' if cp99 is None else f'{cp99:.3f}'} | {s.get('torn_edges', '-')} |"
         )
+    lines += _own_dynamics_markdown(targets)
     for name, s in targets.items():
         if s.get("sheet"):
-            lines += ["", f"{name[: -len('-target')]}: proxy above, target below", ""]
+            rows = "proxy, embedded target, target" if s.get("mode") == "tiers" else "proxy, target"
+            lines += ["", f"{name[: -len('-target')]}: {rows} (rows, top to bottom)", ""]
             lines.append(f"![{name}](sim/{name}/{s['sheet']})")
+    return lines
+
+
+def _own_dynamics_markdown(targets: dict) -> list[str]:
+    """Per clip with simulated tiers: how far the target moves from the same target embedded in
+    the same proxy (its dynamics of its own), over the garment and the tiers, beside the tiers'
+    floor (a 10 um nudge's distance, over the clip's first frames, and the own dynamics over
+    the same frames), their speed and their crossings of the layer beneath."""
+    tiered = {k: v for k, v in targets.items() if v.get("own_dynamics")}
+    if not tiered:
+        return []
+    lines = [
+        "",
+        "Dynamics of its own: the distance (mm, mean / p95 over frames and vertices) of the "
+        "target from the same target embedded in the same simulated proxy; the floor is the "
+        "distance between two runs of the tiers 10 um apart, over the clip's first frames, "
+        "beside the own dynamics over the same frames. Crossings: (frame, vertex) pairs of the "
+        "tiers behind the layer beneath them.",
+        "",
+        "| clip | garment | tiers | tiers, first frames | floor (tiers) | frames | crossings "
+        "(deepest) | tiers' ms/frame |",
+        "| --- | --- | --- | --- | --- | ---: | --- | ---: |",
+    ]
+
+    def pair(d: dict | None) -> str:
+        return "-" if not d else f"{d['mean_mm']:.1f} / {d['p95_mm']:.1f}"
+
+    for name, s in tiered.items():
+        own, floor, t = s["own_dynamics"], s.get("floor") or {}, s["tiers"]
+        lines.append(
+            f"| {name[: -len('-target')]} | {pair(own['garment'])} | {pair(own['tiers'])} | "
+            f"{pair(floor.get('own_dynamics_tiers'))} | {pair(floor.get('tiers'))} | "
+            f"{floor.get('frames', '-')} | {100 * t['layer_crossing_fraction']:.2f} % "
+            f"({t['layer_crossing_max_mm']:.1f} mm) | {t['ms_per_frame']:.0f} |"
+        )
     return lines
 
 

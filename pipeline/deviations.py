@@ -150,7 +150,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
         )
     else:
         solver = f"newton, Style3D, {steps}, Chebyshev-accelerated, rho {CHEBYSHEV_RHO}"
-    if config.target_mode == "embed":
+    if config.target_mode in ("embed", "tiers"):
+        tiers = config.target_mode == "tiers"
         add(
             "ground truth",
             "the detailed garment simulated (Marvelous Designer)",
@@ -161,8 +162,14 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
                 if config.layer_thickness
                 else ""
             )
-            + "); the detailed target embedded in "
-            "it: its details keep their offsets, no secondary motion of their own"
+            + "); the detailed target embedded in it"
+            + (
+                ", its hanging pieces (the frill tiers) simulated as cloth of their own on it "
+                "(the same implicit solver, seams kinematic, one-sided contact with the "
+                "layer beneath, no contact between tiers); its layers keep their offsets"
+                if tiers
+                else ": its details keep their offsets, no secondary motion of their own"
+            )
             + (
                 "; its inner layers pushed out of the body's capsules where they would sink in"
                 if config.target_contact

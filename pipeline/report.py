@@ -45,6 +45,11 @@ PAPER_OURS_TO_DNR = 0.57
 #: headline, and the sentence that says what it means.
 GROUND_TRUTHS = {
     "simulate": ("simulated", "the detailed target is a cloth simulation of its own"),
+    "tiers": (
+        "embedded, tiers simulated",
+        "the detailed target is carried by the simulated proxy, and its frill tiers are "
+        "simulated as cloth on it (their own swing and lag; the layers keep their offsets)",
+    ),
     "embed": (
         "embedded",
         "the detailed target is carried by the simulated proxy (its details keep their offsets "

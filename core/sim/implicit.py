@@ -189,13 +189,17 @@ class ImplicitCloth:
         vertices) against ``tol``
     layers : (V,) float metres of soft layers beyond each vertex's margin, or None (none)
     layer_ke : N/m with which those layers push back once the body presses into them
+    full_bending : put bending's whole Hessian ``kb Q`` in the matrix, not its diagonal alone:
+        more fill-in, but Newton converges where bending holds the cloth's shape against
+        gravity (a hanging flap: :mod:`core.sim.tiers`), which the diagonal alone leaves to
+        slow, linear convergence
     """
 
     def __init__(
         self, rest: ClothRest, stretch_ke: float, contact_ke: float, radius: np.ndarray,
         friction: np.ndarray, capsule_radii: np.ndarray, pinned: np.ndarray, tol: float,
         iterations: int, norm: str = "max", layers: np.ndarray | None = None,
-        layer_ke: float = 0.0,
+        layer_ke: float = 0.0, full_bending: bool = False,
     ):  # fmt: skip
         self.rest = rest
         self.ku = self.kv = float(stretch_ke)
@@ -221,6 +225,7 @@ class ImplicitCloth:
         free[np.asarray(pinned, np.int64)] = False
         self.free = free
         self.newton_iterations: list[int] = []
+        self.full_bending = bool(full_bending)
         self.bend_diag = np.asarray(rest.bend.diagonal())
         self._factor = None  # qdldl's LDL^T: the ordering and symbolic pass once, then numbers
         t = len(rest.faces)
@@ -240,8 +245,10 @@ class ImplicitCloth:
         f = self.rest.faces
         vi = np.repeat(f[:, :, None], 3, 2)  # (T, 3, 3) row vertex
         vj = np.repeat(f[:, None, :], 3, 1)
-        pairs_r = np.concatenate([vi.ravel(), np.arange(v)])
-        pairs_c = np.concatenate([vj.ravel(), np.arange(v)])
+        bend = self.rest.bend.tocoo()
+        qi, qj = (bend.row, bend.col) if self.full_bending else (np.zeros(0, int),) * 2
+        pairs_r = np.concatenate([vi.ravel(), np.arange(v), qi])
+        pairs_c = np.concatenate([vj.ravel(), np.arange(v), qj])
         block = sp.csr_matrix((np.ones(len(pairs_r)), (pairs_r, pairs_c)), shape=(v, v))
         block.sum_duplicates()
         block.sort_indices()
@@ -293,6 +300,10 @@ class ImplicitCloth:
         self._tri_slots = scalar_slots(block_slot(vi, vj))  # (T, 3, 3, 3, 3)
         diag = np.arange(v)
         self._diag_slots = scalar_slots(block_slot(diag, diag))  # (V, 3, 3)
+        # bending's entries kb Q_ij on each block's diagonal (the same Q for x, y and z)
+        three = np.arange(3)
+        self._bend_slots = scalar_slots(block_slot(qi, qj))[:, three, three]  # (Q, 3)
+        self._bend_values = np.repeat(bend.data if self.full_bending else np.zeros(0), 3)
 
     # -- the objective's terms ------------------------------------------------------------------
     def _membrane(self, y: np.ndarray, hessian: bool, gradient: bool = True):
@@ -403,7 +414,29 @@ class ImplicitCloth:
             np.add.at(h, vi, k[:, None, None] * proj)
         return energy, grad, h
 
-    def _objective(self, y, target, inv_dt2, ends, pairs, lag, hessian: bool, gradient=True):
+    def _planes(self, y: np.ndarray, planes, hessian: bool, gradient: bool = True):
+        """Penalty ``contact_ke (margin - (y - p) . n)^2 / 2`` where positive, on ``planes`` =
+        (vertex (P,), point p (P, 3), unit normal n (P, 3), margin (metres)), or None: one-sided
+        contact with a surface given per step (the cloth beneath a hanging piece)."""
+        if planes is None:
+            return 0.0, 0.0, None
+        vi, p, n, margin = planes
+        pen = np.clip(margin - ((y[vi] - p) * n).sum(1), 0.0, None)
+        energy = 0.5 * self.contact_ke * (pen * pen).sum()
+        if not gradient:
+            return energy, None, None
+        grad = np.zeros_like(y)
+        np.add.at(grad, vi, -self.contact_ke * pen[:, None] * n)
+        h = None
+        if hessian:
+            h = np.zeros((len(y), 3, 3))
+            k = self.contact_ke * (pen > 0)
+            np.add.at(h, vi, k[:, None, None] * n[:, :, None] * n[:, None, :])
+        return energy, grad, h
+
+    def _objective(
+        self, y, target, inv_dt2, ends, pairs, lag, hessian: bool, gradient=True, planes=None
+    ):
         """``E(y)``, its gradient (V, 3) (None unless ``gradient`` or ``hessian``: a line
         search needs only ``E``) and, if ``hessian``, the upper triangle (row <= column) of its
         positive semi-definite approximation over the free vertices' unknowns (CSC, 3 x free
@@ -417,18 +450,26 @@ class ImplicitCloth:
         e_b = 0.5 * (y * by).sum()
         e_c, g_c, h_c = self._contact(y, ends, pairs, hessian, gradient)
         e_f, g_f, h_f = self._friction(y, lag, hessian, gradient)
-        energy = e_in + e_m + e_b + e_c + e_f
+        e_p, g_p, h_p = self._planes(y, planes, hessian, gradient)
+        energy = e_in + e_m + e_b + e_c + e_f + e_p
         if not gradient:
             return energy, None, None
-        grad = inv_dt2 * m[:, None] * dy + by + g_c + g_f
+        grad = inv_dt2 * m[:, None] * dy + by + g_c + g_f + g_p
         np.add.at(grad, self.rest.faces.ravel(), g_tri.reshape(-1, 3))
         if not hessian:
             return energy, grad, None
-        diag = (inv_dt2 * m + self.bend_diag)[:, None, None] * np.eye(3) + h_c
+        bend_diag = 0.0 if self.full_bending else self.bend_diag
+        diag = (inv_dt2 * m + bend_diag)[:, None, None] * np.eye(3) + h_c
         if h_f is not None:
             diag = diag + h_f
+        if h_p is not None:
+            diag = diag + h_p
         data = np.bincount(self._tri_slots.ravel(), h_tri.ravel(), minlength=self._nnz + 1)
         data += np.bincount(self._diag_slots.ravel(), diag.ravel(), minlength=self._nnz + 1)
+        if self.full_bending:
+            data += np.bincount(
+                self._bend_slots.ravel(), self._bend_values, minlength=self._nnz + 1
+            )
         matrix = sp.csc_matrix(
             (data[self._upper], self._up_indices, self._up_indptr), shape=(self._n, self._n)
         )
@@ -468,7 +509,7 @@ class ImplicitCloth:
 
     def step(
         self, x: np.ndarray, v: np.ndarray, pinned_to: np.ndarray, ends0: np.ndarray,
-        ends1: np.ndarray, dt: float, before=None,
+        ends1: np.ndarray, dt: float, before=None, planes=None,
     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """One implicit step: backward Euler, or BDF2 given the step before.
 
@@ -482,6 +523,8 @@ class ImplicitCloth:
             BDF2 (second order: ``y = x~ + h^2 a(y)`` with ``h = 2 dt / 3`` and
             ``x~ = 4/3 x - 1/3 x' + h (4/3 v - 1/3 v')``); None: backward Euler (first order,
             whose numerical damping of a swing grows with the step)
+        planes : (vertex (P,), point (P, 3), unit normal (P, 3), margin) one-sided contact
+            planes for this step (:meth:`_planes`), or None
 
         Returns
         -------
@@ -507,7 +550,9 @@ class ImplicitCloth:
         used, k = self.iterations, 0
         while k < self.iterations:
             k += 1
-            energy, grad, matrix = self._objective(y, target, inv_dt2, ends1, pairs, lag, True)
+            energy, grad, matrix = self._objective(
+                y, target, inv_dt2, ends1, pairs, lag, True, True, planes
+            )
             g = grad[free].ravel()
             if not len(g):  # every vertex kinematic
                 break
@@ -521,7 +566,9 @@ class ImplicitCloth:
             alpha = 1.0
             while alpha >= MIN_ALPHA:
                 trial = y + alpha * p
-                e_new = self._objective(trial, target, inv_dt2, ends1, pairs, lag, False, False)
+                e_new = self._objective(
+                    trial, target, inv_dt2, ends1, pairs, lag, False, False, planes
+                )
                 if e_new[0] <= energy + ARMIJO * alpha * slope:
                     break
                 alpha *= 0.5

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,7 @@ from core.mesh import Mesh, load_mesh
 from core.project import Project
 from core.shading import contact_sheet, render_views, write_png
 from core.sim import SimCache, load_cache, save_cache
+from core.sim.sanity import FLOOR_PERTURBATION_M
 from core.sim.thickness import layer_thickness
 from pipeline.config import Log, PipelineConfig, quiet, sim_config
 from pipeline.stages.motions import load_project_motion
@@ -43,9 +44,7 @@ def stage_simulate(
 
     if which not in ("proxy", "target"):
         raise InputError(f"which must be 'proxy' or 'target', got {which!r}")
-    if config.target_mode not in ("simulate", "embed"):
-        raise InputError(f"target_mode must be 'simulate' or 'embed', got {config.target_mode!r}")
-    if which == "target" and config.target_mode == "embed":
+    if which == "target" and config.target_mode in ("embed", "tiers"):
         return _embed_target(project, config, motion_name, log)
     garment = (
         project.path("proxy", "positions.obj")
@@ -124,10 +123,15 @@ def stage_embedding(project: Project, config: PipelineConfig, log: Log = quiet) 
 
 
 def _embed_target(project: Project, config: PipelineConfig, motion_name: str, log: Log) -> Path:
-    """The target driven by the proxy's simulation (``target_mode="embed"``), measured like a
-    simulation: edge stretch and compression against the rest garment, tears, penetration into
-    the body's capsules (those the simulation collides with, which ``config.target_contact``
-    keeps the target out of); ``sheet.png`` shows the proxy and the target on the body."""
+    """The target driven by the proxy's simulation (``target_mode="embed"``), with its hanging
+    pieces simulated on it (``"tiers"``: :mod:`core.sim.tiers`), measured like a simulation:
+    edge stretch and compression against the rest garment, tears, penetration into the body's
+    capsules (those the simulation collides with, which ``config.target_contact`` keeps the
+    target out of); with tiers, how far they move from the embedded target ("dynamics of
+    their own", over the garment and over the tiers), their floor (a 10 um nudge's distance
+    over ``TierConfig.floor_frames``) and their crossings of the layer beneath.
+    ``sheet.png`` shows the proxy and the target on the body (and the embedded target between
+    them, with tiers)."""
     from core.sim.embed import (
         FRAME_SMOOTHING_M,
         SMOOTHING_M,
@@ -143,14 +147,19 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     embedding_file = stage_embedding(project, config, log)
     proxy_cache = project.path(f"sim/{motion_name}-proxy", "cache.npz")
     stage = f"sim/{motion_name}-target"
+    tiered = config.target_mode == "tiers"
     params = {
-        "mode": "embed",
+        "mode": config.target_mode,
         "method": "smoothed-binding-deformation",
         "smoothing_m": SMOOTHING_M,
         "frame_smoothing_m": FRAME_SMOOTHING_M,
         "body": asdict(config.body),
         "contact": asdict(ContactSettings()) if config.target_contact else None,
     }
+    if tiered:
+        from core.sim.tiers import TierConfig
+
+        params["tiers"] = asdict(TierConfig())
 
     def work(out: Path) -> list[str]:
         target, _ = load_mesh(target_file)
@@ -164,15 +173,26 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
         contact = BodyContact(ends, radii) if config.target_contact else None
         start = time.perf_counter()
         positions = drive(load_embedding(embedding_file), cache.positions, contact)
+        rows = [("proxy", cache.positions, cache.faces)]
+        extra = {}
+        if tiered:
+            rows.append(("embedded", positions, target.faces))
+            positions, extra = _simulate_tiers(
+                positions, target, config.body, ends, radii, cache.fps, log,
+            )  # fmt: skip
         seconds = time.perf_counter() - start
         strain = strain_stats(positions, target.vertices, target.faces)
         depth = penetration_depths(positions, ends, radii)
-        params_out = {**cache.params, "target_mode": "embed", "proxy_cache": str(proxy_cache)}
+        params_out = {
+            **cache.params,
+            "target_mode": config.target_mode,
+            "proxy_cache": str(proxy_cache),
+        }
         save_cache(out / "cache.npz", SimCache(positions, target.faces, cache.fps, params_out))
-        rows = [("proxy", cache.positions, cache.faces), ("target", positions, target.faces)]
+        rows.append(("target", positions, target.faces))
         _garment_sheet(out / "sheet.png", rows, config.body, motion)
         report = {
-            "mode": "embed",
+            "mode": config.target_mode,
             "frames": int(len(positions)),
             "vertices": int(target.num_vertices),
             "ms_per_frame": 1e3 * seconds / len(positions),
@@ -187,10 +207,12 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
             "contact": params["contact"],
             "finite": bool(np.isfinite(positions).all()),
             "sheet": "sheet.png",
+            **extra,
         }
         write_json(out / "report.json", report)
         log(
-            f"  {motion_name}/target (embedded in the proxy): {report['frames']} frames x "
+            f"  {motion_name}/target ({'tiers simulated on ' if tiered else ''}embedded in the "
+            f"proxy): {report['frames']} frames x "
             f"{report['vertices']} vertices, {report['ms_per_frame']:.1f} ms/frame, stretch max "
             f"{strain.stretch_max:.3f} p99 {strain.stretch_p99:.3f}, "
             f"penetration mean {report['penetration_mean_mm']:.2f} max "
@@ -201,6 +223,56 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     inputs = [target_file, proxy_file, embedding_file, proxy_cache]
     project.run_stage(stage, params, inputs, work)
     return project.path(stage, "cache.npz")
+
+
+def _simulate_tiers(embedded, target: Mesh, shape, ends, radii, fps: float, log):
+    """The embedded target's tiers simulated (:func:`core.sim.tiers.simulate_tiers`) on the body
+    of ``shape``: the positions (T, V, 3) and the report's fields (see :func:`_embed_target`)."""
+    from core.sim.tiers import TierConfig, distances, find_tiers, layer_crossings, simulate_tiers
+
+    tiers = find_tiers(target.vertices, target.faces, shape)
+    cfg = TierConfig()
+    positions, run = simulate_tiers(
+        embedded, target.faces, target.vertices, tiers, ends, radii, fps, cfg
+    )
+    n = min(cfg.floor_frames, len(positions))
+    own = {
+        "garment": distances(positions, embedded),
+        "tiers": distances(positions, embedded, tiers.free),
+    }
+    fields = {
+        "tiers": {
+            "pieces": tiers.pieces,
+            "vertices": int(len(tiers.free)),
+            "seam_vertices": int(len(tiers.pinned)),
+            "ms_per_frame": 1e3 * run.seconds / len(positions),
+            "newton_mean": run.newton_mean,
+            "layer_contact_fraction": run.layer_pushes,
+        },
+        "own_dynamics": own,
+    }
+    crossing, deepest = layer_crossings(positions, target.vertices, tiers, cfg)
+    fields["tiers"]["layer_crossing_fraction"] = crossing
+    fields["tiers"]["layer_crossing_max_mm"] = 1e3 * deepest
+    if n:
+        nudged = replace(cfg, perturbation=FLOOR_PERTURBATION_M, seed=1)
+        again, _ = simulate_tiers(
+            embedded[:n], target.faces, target.vertices, tiers, ends[:n], radii, fps, nudged
+        )
+        fields["floor"] = {
+            "frames": n,
+            "garment": distances(positions[:n], again),
+            "tiers": distances(positions[:n], again, tiers.free),
+            "own_dynamics_tiers": distances(positions[:n], embedded[:n], tiers.free),
+        }
+    floor = fields.get("floor", {}).get("tiers", {}).get("mean_mm")
+    log(
+        f"    tiers: {tiers.pieces} pieces, {len(tiers.free)} vertices, "
+        f"{fields['tiers']['ms_per_frame']:.0f} ms/frame; from the embedded target "
+        f"{own['tiers']['mean_mm']:.1f} mm mean (p95 {own['tiers']['p95_mm']:.1f})"
+        + ("" if floor is None else f", floor {floor:.1f} mm over {n} frames")
+    )
+    return positions, fields
 
 
 def _garment_sheet(path: Path, rows, shape, motion, frames: int = 5) -> None:
