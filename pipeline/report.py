@@ -48,7 +48,7 @@ GROUND_TRUTHS = {
     "tiers": (
         "embedded, tiers simulated",
         "the detailed target is carried by the simulated proxy, and its frill tiers are "
-        "simulated as cloth on it (their own swing and lag; the layers keep their offsets)",
+        "simulated as cloth on it (a motion of their own; the layers keep their offsets)",
     ),
     "embed": (
         "embedded",
