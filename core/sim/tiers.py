@@ -166,7 +166,7 @@ class TierRun:
     seconds: float
     newton_mean: float
     """Mean Newton iterations per step."""
-    layer_pushes: float
+    layer_contacts: float
     """Mean fraction of tier vertices given a layer contact plane per step."""
     steps: int = 0
 
@@ -336,10 +336,10 @@ def simulate_tiers(
     vel = (e[min(1, len(e) - 1), tiers.free] - e[0, tiers.free]) * fps
     dt = 1.0 / (fps * config.substeps)
     before = None
-    pushes, steps = 0, 0
+    contacts, steps = 0, 0
 
     def advance(x, vel, before, ends_a, ends_b, frame, cloth_b, normals_b, x_from):
-        nonlocal pushes, steps
+        nonlocal contacts, steps
         planes, _ = _layer_planes(
             x, contact, cloth_b, normals_b, config.layer_reach * beneath.edge, config
         )
@@ -350,7 +350,7 @@ def simulate_tiers(
         if config.damping > 0:
             carried = (frame[tiers.free] - x_from) / dt  # the embedded tiers' velocity
             vn = carried + (vn - carried) * np.exp(-config.damping * dt)
-        pushes += len(planes[0])
+        contacts += len(planes[0])
         steps += 1
         return xn, vn, (x, vel)
 
@@ -372,6 +372,6 @@ def simulate_tiers(
     return out, TierRun(
         seconds=seconds,
         newton_mean=float(np.mean(its)) if its else 0.0,
-        layer_pushes=pushes / max(steps, 1) / len(tiers.free),
+        layer_contacts=contacts / max(steps, 1) / len(tiers.free),
         steps=steps,
     )

@@ -247,7 +247,7 @@ def _simulate_tiers(embedded, target: Mesh, shape, ends, radii, fps: float, log)
             "seam_vertices": int(len(tiers.pinned)),
             "ms_per_frame": 1e3 * run.seconds / len(positions),
             "newton_mean": run.newton_mean,
-            "layer_contact_fraction": run.layer_pushes,
+            "layer_contact_fraction": run.layer_contacts,
         },
         "own_dynamics": own,
     }
