@@ -62,7 +62,7 @@ IMPLICIT_NORMS = ("max", "rms")
 #: The Python types each of :class:`SimConfig`'s annotations admits (an int for a float).
 _SETTING_TYPES = {
     "int": Integral, "float": Real, "float | None": (Real, type(None)),
-    "bool | None": (bool, np.bool_, type(None)), "str": str,
+    "bool | None": (bool, np.bool_, type(None)), "bool": (bool, np.bool_), "str": str,
 }  # fmt: skip
 
 
@@ -149,6 +149,17 @@ class SimConfig:
     the margin met at ``contact_ke`` (the implicit solver; Style3D's contact has one stiffness).
     Frills and the air between them give: as a rigid shell they held a skirt on the hips after
     a kick (docs/decisions.md, "The layers beneath the proxy are soft")."""
+    compression: float = 0.01
+    """The membrane's stiffness in compression, as a fraction of its stiffness in stretch (the
+    implicit solver). A coarse mesh's triangle stands for cloth that buckles into folds finer
+    than it, which costs little: at 1 the folds a kick or a kneel made were held in place
+    (docs/decisions.md, "The proxy's cloth")."""
+    rest_bending: bool = True
+    """Bending toward the garment's rest shape (each hinge's rest bend turned with the cloth),
+    not toward flat (the implicit solver): what holds a shape the soft membrane cannot."""
+    layer_bending: float = 10.0
+    """A proxy kept off the body by its layers (``thickness``) bends this many times as stiffly
+    as its fabric (the implicit solver): it stands for the layers and frills beneath it."""
     self_contact_thickness: float = 0.003
     """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
     It must stay below the gaps a layered garment is built with (the built-in templates stack
@@ -163,6 +174,10 @@ class SimConfig:
     solver's own fixed per-step drag is divided out, see ``core.sim.simulate``)."""
     contact_ke: float = 1.0e4
     """Body-contact stiffness, N/m."""
+    contact_release: float | None = 0.01
+    """How deep (metres) past its margin's outer edge a vertex's push from the body stops
+    growing (the implicit solver; None: never). Cloth that a fast limb carried deep into a
+    capsule is then pulled out by its own tension instead of held there, stretched."""
     max_retries: int = 2
     """Times a frame that blows up is retried, each with twice the steps, before giving up."""
     blowup_strain: float = 5.0
@@ -199,7 +214,10 @@ class SimConfig:
             "collision_margin": self.collision_margin > 0,
             "self_contact_thickness": self.self_contact_thickness > 0,
             "contact_ke": self.contact_ke > 0,
+            "contact_release": self.contact_release is None or self.contact_release > 0,
             "layer_ke": self.layer_ke >= 0,
+            "compression": 0 < self.compression <= 1,
+            "layer_bending": self.layer_bending > 0,
             "contact_gap": self.contact_gap >= 0,
             "damping": self.damping >= 0,
             "max_retries": self.max_retries >= 0,

@@ -21,9 +21,12 @@ The material is Style3D's as this project configures it (:func:`core.sim.simulat
 Baraff-Witkin membrane ``A (ku (|Fu| - 1)^2 + kv (|Fv| - 1)^2 + ks (Fu . Fv)^2) / 2`` on each
 triangle laid flat (``ku = kv = stretch_ke``, ``ks = stretch_ke / 2``; Style3D's shear force
 normalises ``Fu``, ``Fv``, the same to first order) and Bergou's quadratic (isometric) bending
-``kb x^T Q x / 2``. The body is the same capsules; a vertex at distance ``d`` from a capsule of
+``kb x^T Q x / 2`` (or toward the rest shape's bends, ``rest_bending``). In compression the
+membrane is ``compression`` times as stiff (a coarse triangle stands for cloth that buckles).
+The body is the same capsules; a vertex at distance ``d`` from a capsule of
 radius ``r`` with contact margin ``R`` (``collision_margin``) has the penalty ``contact_ke (r + R
-- d)^2 / 2`` where that is positive; a proxy's layers (``thickness`` ``L`` beneath the vertex)
+- d)^2 / 2`` where that is positive (linear past ``release``, so cloth a fast limb carried
+deep into it is not held there); a proxy's layers (``thickness`` ``L`` beneath the vertex)
 add a soft ``layer_ke (r + R + L - d)^2 / 2`` (:mod:`core.sim.thickness`); and lagged Coulomb
 friction (IPC's smoothed ``mu lambda f0(|u_T|)``, its normal force ``lambda`` and direction taken at the
 step's start, the slip ``u_T`` against the capsule's own motion). Pinned vertices follow their
@@ -56,6 +59,8 @@ FRICTION_EPS_V = 1.0e-3
 #: Line search: shortest step tried, and the sufficient-decrease fraction (Armijo).
 MIN_ALPHA = 1.0 / 64.0
 ARMIJO = 1.0e-4
+#: Fraction of the rest length below which a membrane softened in compression is stiff again.
+COMPRESSION_KNEE = 0.5
 
 
 @dataclass(frozen=True)
@@ -70,6 +75,7 @@ class ClothRest:
     area : (T,) float64 rest areas
     mass : (V,) float64 lumped masses (kg)
     bend : (V, V) sparse float64 Bergou's ``Q`` (times the bending stiffness)
+    hinges : :class:`Hinges`, the interior edges ``Q`` sums over, with their rest bends
     """
 
     faces: np.ndarray
@@ -78,6 +84,46 @@ class ClothRest:
     area: np.ndarray
     mass: np.ndarray
     bend: sp.csr_matrix
+    hinges: Hinges
+
+
+@dataclass(frozen=True)
+class Hinges:
+    """The interior edges of a mesh as Bergou's bending sees them (H hinges).
+
+    Attributes
+    ----------
+    stencil : (H, 4) int64 the edge's ends, then the two opposite corners
+    k : (H, 4) float64 the cotangent weights ``K``: ``K x`` (3,) is the hinge's bend, a vector
+        along the sum of its two faces' normals, zero where the hinge is flat
+    weight : (H,) float64 ``3 / (A0 + A1)`` times the bending stiffness (``Q = sum weight K K^T``)
+    rest : (H,) float64 the rest bend's length, signed along the rest normals' sum
+    """
+
+    stencil: np.ndarray
+    k: np.ndarray
+    weight: np.ndarray
+    rest: np.ndarray
+
+    def normals(self, x: np.ndarray) -> np.ndarray:
+        """(H, 3) the unit sum of each hinge's two face normals at positions ``x`` (V, 3)."""
+        p0, p1, p2, p3 = (x[self.stencil[:, i]] for i in range(4))
+        n0 = np.cross(p1 - p0, p2 - p0)
+        n1 = np.cross(p3 - p0, p1 - p0)
+        n0 /= np.maximum(np.linalg.norm(n0, axis=1), 1e-300)[:, None]
+        n1 /= np.maximum(np.linalg.norm(n1, axis=1), 1e-300)[:, None]
+        m = n0 + n1
+        return m / np.maximum(np.linalg.norm(m, axis=1), 1e-12)[:, None]
+
+    def rest_force(self, x: np.ndarray) -> np.ndarray:
+        """(V, 3) ``sum weight K (rest m)``, ``m`` the hinges' normals at ``x``: the force with
+        which bending toward the rest shape's bends, turned with the cloth, pulls each vertex
+        (:class:`ImplicitCloth`'s ``rest_bending``)."""
+        b = self.rest[:, None] * self.normals(x)  # (H, 3) each hinge's bend at rest, turned
+        out = np.zeros_like(x)
+        np.add.at(out, self.stencil.ravel(), (self.weight[:, None, None] * self.k[:, :, None]
+                                              * b[:, None, :]).reshape(-1, 3))
+        return out
 
 
 def cloth_rest(
@@ -110,7 +156,9 @@ def cloth_rest(
     dv = np.stack([-inv[:, 0, 1] - inv[:, 1, 1], inv[:, 0, 1], inv[:, 1, 1]], 1)
     area = 0.5 * twice
     mass = np.bincount(f.ravel(), np.repeat(density * area / 3.0, 3), minlength=len(x))
-    return ClothRest(f, du, dv, area, mass, bend_ke * bending_matrix(x, f))
+    h = _hinges(x, f)
+    hinges = Hinges(h.stencil, h.k, bend_ke * h.weight, h.rest)
+    return ClothRest(f, du, dv, area, mass, bend_ke * _hinge_matrix(h, len(x)), hinges)
 
 
 def bending_matrix(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
@@ -121,6 +169,20 @@ def bending_matrix(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     on (x0, x1, x2, x3), ``c0j`` the cotangents of the angles the edge makes with the others
     (zero on a flat rest stencil: ``K`` annihilates every affine field there).
     """
+    x = np.asarray(vertices, np.float64)
+    return _hinge_matrix(_hinges(x, np.asarray(faces, np.int64)), len(x))
+
+
+def _hinge_matrix(h: Hinges, v: int) -> sp.csr_matrix:
+    q = h.weight[:, None, None] * h.k[:, :, None] * h.k[:, None, :]
+    rows = np.repeat(h.stencil[:, :, None], 4, 2).ravel()
+    cols = np.repeat(h.stencil[:, None, :], 4, 1).ravel()
+    return sp.csr_matrix((q.ravel(), (rows, cols)), shape=(v, v))
+
+
+def _hinges(vertices: np.ndarray, faces: np.ndarray) -> Hinges:
+    """The interior edges of (V, 3) ``vertices`` and (T, 3) ``faces`` (:class:`Hinges`, at a
+    bending stiffness of 1)."""
     x = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     half = np.concatenate([f[:, [0, 1, 2]], f[:, [1, 2, 0]], f[:, [2, 0, 1]]])  # (a, b, opposite)
@@ -141,11 +203,11 @@ def bending_matrix(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     kk = np.stack([c03 + c04, c01 + c02, -c01 - c03, -c02 - c04], 1)
     a0 = 0.5 * np.linalg.norm(np.cross(e0, p2 - p0), axis=1)
     a1 = 0.5 * np.linalg.norm(np.cross(e0, p3 - p0), axis=1)
-    q = 3.0 / (a0 + a1)[:, None, None] * kk[:, :, None] * kk[:, None, :]
     idx = np.stack([x0, x1, x2, x3], 1)
-    rows = np.repeat(idx[:, :, None], 4, 2).ravel()
-    cols = np.repeat(idx[:, None, :], 4, 1).ravel()
-    return sp.csr_matrix((q.ravel(), (rows, cols)), shape=(len(x), len(x)))
+    hinges = Hinges(idx, kk, 3.0 / (a0 + a1), np.zeros(len(idx)))
+    bent = (kk[:, :, None] * x[idx]).sum(1)  # (H, 3) each hinge's rest bend K x
+    rest = (bent * hinges.normals(x)).sum(1)
+    return Hinges(idx, kk, hinges.weight, rest)
 
 
 def segment_gaps(y: np.ndarray, ends: np.ndarray) -> np.ndarray:
@@ -193,15 +255,29 @@ class ImplicitCloth:
         more fill-in, but Newton converges where bending holds the cloth's shape against
         gravity (a hanging flap: :mod:`core.sim.tiers`), which the diagonal alone leaves to
         slow, linear convergence
+    compression : the membrane's stiffness in compression over its stiffness in stretch
+        (:meth:`_axial`)
+    rest_bending : bend toward the rest shape's bends (:class:`Hinges`), turned with the cloth
+        as it is at each step's start, instead of toward flat: ``kb |K y - b|^2 / 2`` per hinge
+        with ``b`` the rest bend along the hinge's normal (the same matrix ``kb Q``; a force)
+    release : metres past its margin's edge beyond which a vertex's push from the body stops
+        growing (its energy goes on linearly)
     """
 
     def __init__(
         self, rest: ClothRest, stretch_ke: float, contact_ke: float, radius: np.ndarray,
         friction: np.ndarray, capsule_radii: np.ndarray, pinned: np.ndarray, tol: float,
         iterations: int, norm: str = "max", layers: np.ndarray | None = None,
-        layer_ke: float = 0.0, full_bending: bool = False,
+        layer_ke: float = 0.0, full_bending: bool = False, compression: float = 1.0,
+        rest_bending: bool = False, release: float = np.inf,
     ):  # fmt: skip
         self.rest = rest
+        self.release = float(release)
+        self.rest_bending = bool(rest_bending)
+        self._bend_force = None  # (V, 3) the rest bends' pull this step (rest_bending)
+        if not 0.0 < compression <= 1.0:
+            raise InputError(f"compression must be in (0, 1], got {compression!r}")
+        self.compression = float(compression)
         self.ku = self.kv = float(stretch_ke)
         self.ks = 0.5 * float(stretch_ke)
         self.contact_ke = float(contact_ke)
@@ -306,6 +382,23 @@ class ImplicitCloth:
         self._bend_values = np.repeat(bend.data if self.full_bending else np.zeros(0), 3)
 
     # -- the objective's terms ------------------------------------------------------------------
+    def _axial(self, length: np.ndarray, k: float):
+        """One direction's energy density (twice it), its slope and its curvature over ``k``, in
+        its length ``|F|`` (T,): ``k (|F| - 1)^2 / 2`` in stretch; in compression
+        ``compression`` times that (a coarse mesh's triangle stands for cloth that buckles,
+        which costs little), and stiff again below :data:`COMPRESSION_KNEE` of the rest length
+        (a triangle never vanishes). At ``compression = 1`` the plain quadratic, to the bit."""
+        c = self.compression
+        if c == 1.0:
+            return k * (length - 1) ** 2, k * (length - 1), np.ones_like(length)
+        soft = np.where(length < 1.0, c * k, k)
+        below = np.minimum(length - COMPRESSION_KNEE, 0.0)
+        hard = (1.0 - c) * k
+        twice_energy = soft * (length - 1) ** 2 + hard * below**2
+        slope = soft * (length - 1) + hard * below
+        ratio = np.where(length < 1.0, c, 1.0) + np.where(below < 0, 1.0 - c, 0.0)
+        return twice_energy, slope, ratio
+
     def _membrane(self, y: np.ndarray, hessian: bool, gradient: bool = True):
         r = self.rest
         f = np.matmul(self._g, y[r.faces])  # (T, 2, 3)
@@ -314,13 +407,13 @@ class ImplicitCloth:
         uu, vv = fu / np.maximum(lu, 1e-12)[:, None], fv / np.maximum(lv, 1e-12)[:, None]
         c = (fu * fv).sum(1)
         a = r.area
-        energy = (
-            0.5 * (a * (self.ku * (lu - 1) ** 2 + self.kv * (lv - 1) ** 2 + self.ks * c * c)).sum()
-        )
+        eu, du, ru = self._axial(lu, self.ku)
+        ev, dv, rv = self._axial(lv, self.kv)
+        energy = 0.5 * (a * (eu + ev + self.ks * c * c)).sum()
         if not gradient:
             return energy, None, None
-        gu = a[:, None] * (self.ku * (lu - 1)[:, None] * uu + self.ks * c[:, None] * fv)  # dE/dFu
-        gv = a[:, None] * (self.kv * (lv - 1)[:, None] * vv + self.ks * c[:, None] * fu)
+        gu = a[:, None] * (du[:, None] * uu + self.ks * c[:, None] * fv)  # dE/dFu
+        gv = a[:, None] * (dv[:, None] * vv + self.ks * c[:, None] * fu)
         grad = np.matmul(self._g.transpose(0, 2, 1), np.stack([gu, gv], 1))  # (T, 3, 3)
         if not hessian:
             return energy, grad, None
@@ -328,10 +421,12 @@ class ImplicitCloth:
         su = np.clip(1.0 - 1.0 / np.maximum(lu, 1e-12), 0.0, None)  # compression's part dropped
         sv = np.clip(1.0 - 1.0 / np.maximum(lv, 1e-12), 0.0, None)
         huu = self.ku * (
-            uu[:, :, None] * uu[:, None] + su[:, None, None] * (eye - uu[:, :, None] * uu[:, None])
+            ru[:, None, None] * uu[:, :, None] * uu[:, None]
+            + su[:, None, None] * (eye - uu[:, :, None] * uu[:, None])
         )
         hvv = self.kv * (
-            vv[:, :, None] * vv[:, None] + sv[:, None, None] * (eye - vv[:, :, None] * vv[:, None])
+            rv[:, None, None] * vv[:, :, None] * vv[:, None]
+            + sv[:, None, None] * (eye - vv[:, :, None] * vv[:, None])
         )
         # shear, Gauss-Newton: ks w w^T with w = (Fv, Fu)
         huu = huu + self.ks * fv[:, :, None] * fv[:, None]
@@ -350,19 +445,24 @@ class ImplicitCloth:
         if not gradient:
             d = segment_distances(y[vi], ends[ki, 0], ends[ki, 1])
             pen, soft = np.clip(solid - d, 0.0, None), np.clip(reach - d, 0.0, None)
+            held = np.minimum(pen, self.release)
             energy = 0.5 * (
-                self.contact_ke * (pen * pen).sum() + self.layer_ke * (soft * soft).sum()
+                self.contact_ke * (held * (2 * pen - held)).sum()
+                + self.layer_ke * (soft * soft).sum()
             )
             return energy, None, None
         d, n, _ = closest_on_segments(y[vi], ends[ki, 0], ends[ki, 1])
         pen, soft = np.clip(solid - d, 0.0, None), np.clip(reach - d, 0.0, None)  # (P,)
-        energy = 0.5 * (self.contact_ke * (pen * pen).sum() + self.layer_ke * (soft * soft).sum())
+        held = np.minimum(pen, self.release)  # past release, the push stops growing
+        energy = 0.5 * (
+            self.contact_ke * (held * (2 * pen - held)).sum() + self.layer_ke * (soft * soft).sum()
+        )
         grad = np.zeros_like(y)
-        np.add.at(grad, vi, -(self.contact_ke * pen + self.layer_ke * soft)[:, None] * n)
+        np.add.at(grad, vi, -(self.contact_ke * held + self.layer_ke * soft)[:, None] * n)
         h = None
         if hessian:
             h = np.zeros((len(y), 3, 3))
-            k = self.contact_ke * (pen > 0) + self.layer_ke * (soft > 0)
+            k = self.contact_ke * ((pen > 0) & (pen < self.release)) + self.layer_ke * (soft > 0)
             touch = k > 0
             np.add.at(h, vi[touch], k[touch, None, None] * n[touch, :, None] * n[touch, None, :])
         return energy, grad, h
@@ -448,6 +548,9 @@ class ImplicitCloth:
         e_m, g_tri, h_tri = self._membrane(y, hessian, gradient)
         by = self.rest.bend @ y
         e_b = 0.5 * (y * by).sum()
+        if self._bend_force is not None:  # toward the rest bends, turned as at the step's start
+            by = by - self._bend_force
+            e_b = e_b - (y * self._bend_force).sum()
         e_c, g_c, h_c = self._contact(y, ends, pairs, hessian, gradient)
         e_f, g_f, h_f = self._friction(y, lag, hessian, gradient)
         e_p, g_p, h_p = self._planes(y, planes, hessian, gradient)
@@ -542,6 +645,8 @@ class ImplicitCloth:
         y = x + dt * v
         y[~self.free] = pinned_to
         inv_dt2 = 1.0 / (h * h)
+        if self.rest_bending:
+            self._bend_force = self.rest.hinges.rest_force(x)
         gap0 = segment_gaps(x, ends0)
         start = (x, ends0, gap0)  # the step's start: every gap the contact pairs need bounds
         lag = self._friction_lag(x, ends0, ends1, gap0, dt)
@@ -608,12 +713,15 @@ class ImplicitScene:
         self.config = config
         self.pins = pins
         radius = np.full(garment.num_vertices, config.collision_margin)
-        rest = cloth_rest(garment.vertices, garment.faces, fab.density, fab.bend_ke)
+        stiffer = config.layer_bending if thickness is not None else 1.0
+        rest = cloth_rest(garment.vertices, garment.faces, fab.density, fab.bend_ke * stiffer)
         mu = np.array([0.0 if is_arm(name) else friction for name in capsules.names])
         self.cloth = ImplicitCloth(
             rest, fab.stretch_ke, config.contact_ke, radius, mu, capsules.radii,
             pins.indices, config.implicit_tol, config.iterations, config.implicit_norm,
-            thickness, config.layer_ke,
+            thickness, config.layer_ke, compression=config.compression,
+            rest_bending=config.rest_bending,
+            release=np.inf if config.contact_release is None else config.contact_release,
         )  # fmt: skip
         self.x = garment.vertices.astype(np.float64)
         self.v = np.zeros_like(self.x)
