@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from core.sim.config import CHEBYSHEV_RHO
+from core.sim.config import CHEBYSHEV_RHO, SimConfig
 from pipeline.config import (
     PipelineConfig,
     available_extra_motions,
@@ -147,6 +147,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             f"ours, implicit BDF2 steps by Newton's method, {config.sim_substeps} a frame, each "
             f"until its update is under {config.sim_implicit_tol * 1000:g} mm "
             + ("root mean square" if config.sim_implicit_norm == "rms" else "at every vertex")
+            + "; its membrane soft in compression (the cloth buckles) and its bending toward "
+            "its rest shape"
         )
     else:
         solver = f"newton, Style3D, {steps}, Chebyshev-accelerated, rho {CHEBYSHEV_RHO}"
@@ -158,7 +160,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the proxy simulated ("
             + solver
             + (
-                ", kept off the body by the depth of the target's layers beneath it"
+                ", kept off the body by the depth of the target's layers beneath it, which also "
+                f"make it bend {SimConfig().layer_bending:g} times as stiffly as the fabric"
                 if config.layer_thickness
                 else ""
             )

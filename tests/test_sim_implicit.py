@@ -11,6 +11,7 @@ import scipy.sparse as sp
 from core.body.shape import BodyShape
 from core.errors import InputError
 from core.mesh import unique_edges
+from core.sim import implicit
 from core.sim.config import SimConfig
 from core.sim.implicit import (
     CONTACT_PAD,
@@ -297,3 +298,107 @@ def test_a_step_from_nan_comes_back_non_finite_for_the_callers_checks():
                           np.zeros(1), np.array([0.05]), np.arange(len(v)), 1e-5, 8)  # fmt: skip
     y, _ = every.step(v, np.zeros_like(v), v + 0.01, far, far, 1 / 240)
     assert np.allclose(y, v + 0.01)  # all kinematic: placed where their bones put them
+
+
+# ------------------------------------------------- the proxy's cloth: buckling, rest bends, release
+
+
+def _curved_sheet(n: int = 7):
+    """A sheet bent round a cylinder of radius 0.3 m (a third of a turn): vertices, faces."""
+    v, f, i = _sheet(n, 0.5)
+    angle = (v[:, 0] - 0.25) / 0.3
+    curved = np.stack([0.3 * np.sin(angle), 1.0 + 0.3 * (1 - np.cos(angle)), v[:, 2]], 1)
+    return curved, f, i
+
+
+def test_the_membrane_soft_in_compression_matches_finite_differences_and_is_the_plain_one_at_1():
+    v, f, i = _sheet(4)
+    rng = np.random.default_rng(2)
+    y = 0.8 * v + 0.01 * rng.standard_normal(v.shape)  # mostly shortened, a little sheared
+    y[:, 1] = 1.0 + 0.3 * rng.standard_normal(len(v)) * 0.05
+    plain = ImplicitCloth(cloth_rest(v, f, 0.15, 0.0), 5e3, 1e4, np.full(len(v), 0.004),
+                          np.zeros(1), np.array([0.05]), i[0], 1e-5, 8)  # fmt: skip
+    soft = ImplicitCloth(plain.rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1),
+                         np.array([0.05]), i[0], 1e-5, 8, compression=0.01)  # fmt: skip
+    same = ImplicitCloth(plain.rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1),
+                         np.array([0.05]), i[0], 1e-5, 8, compression=1.0)  # fmt: skip
+    for a, b in zip(plain._membrane(y, True), same._membrane(y, True)):
+        assert np.array_equal(a, b)  # 1: the plain quadratic, to the bit
+    e_plain, e_soft = plain._membrane(y, False)[0], soft._membrane(y, False)[0]
+    assert e_soft < 0.2 * e_plain  # shortening costs little
+    g = np.zeros_like(y)
+    np.add.at(g, f.ravel(), soft._membrane(y, False)[1].reshape(-1, 3))
+    num = np.zeros_like(y)
+    for a in range(len(y)):
+        for c in range(3):
+            yp, ym = y.copy(), y.copy()
+            yp[a, c] += 1e-7
+            ym[a, c] -= 1e-7
+            num[a, c] = (soft._membrane(yp, False, False)[0]
+                         - soft._membrane(ym, False, False)[0]) / 2e-7  # fmt: skip
+    assert np.abs(num - g).max() < 1e-5 * np.abs(g).max()
+    # stretch is met as before; a triangle squashed below half its length is stiff again
+    assert soft._axial(np.array([1.1]), 5e3)[1] == plain._axial(np.array([1.1]), 5e3)[1]
+    slope = soft._axial(np.array([0.9, 0.4]), 5e3)[1]
+    assert slope[0] == pytest.approx(0.01 * 5e3 * -0.1)
+    assert slope[1] < 0.99 * 5e3 * -0.1
+
+
+def test_rest_bending_holds_a_curved_sheet_where_flat_bending_straightens_it():
+    # No gravity, no body: a curved sheet pinned along one straight edge, left to itself. Flat
+    # bending unbends it; bending toward its rest bends leaves it where it is, and so does a
+    # rigid turn of the whole sheet (the rest bends turn with it).
+    v, f, i = _curved_sheet()
+    pinned = i[:, 3]  # the line x = 0.25 across the sheet's middle, where it is straight
+    rest = cloth_rest(v, f, 0.15, 2e-3)
+    assert np.abs(rest.bend @ v).max() > 1e-3  # flat bending pulls at the rest shape
+    assert np.abs(rest.bend @ v - rest.hinges.rest_force(v)).max() < 1e-12
+
+    def run(x0, rest_bending):
+        cloth = ImplicitCloth(rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1),
+                              np.array([0.01]), pinned, 1e-7, 30, full_bending=True,
+                              rest_bending=rest_bending)  # fmt: skip
+        x, vel = x0.copy(), np.zeros_like(x0)
+        far = np.array([[[50.0, 50.0, 50.0], [50.0, 50.1, 50.0]]])
+        for _ in range(20):
+            x, vel = cloth.step(x, vel, x0[pinned], far, far, 0.01)
+        return x
+
+    saved = implicit.GRAVITY.copy()
+    implicit.GRAVITY[:] = 0.0  # the module's constant, put back below
+    try:
+        flat = run(v, False)
+        held = run(v, True)
+        turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        turned = v @ turn.T
+        held_turned = run(turned, True)
+    finally:
+        implicit.GRAVITY[:] = saved
+    assert np.abs(held - v).max() < 1e-6
+    assert np.abs(held_turned - turned).max() < 1e-6
+    assert np.abs(flat - v).max() > 1e-2
+
+
+def test_the_bodys_push_stops_growing_past_the_release_depth():
+    v, f, i = _sheet(4, 0.3)
+    ends = np.array([[[-0.1, 0.98, 0.1], [0.4, 0.98, 0.1]]])
+    held = ImplicitCloth(cloth_rest(v, f, 0.15, 0.0), 5e3, 1e4, np.full(len(v), 0.004),
+                         np.zeros(1), np.array([0.05]), i[0], 1e-5, 8)  # fmt: skip
+    freed = ImplicitCloth(held.rest, 5e3, 1e4, np.full(len(v), 0.004), np.zeros(1),
+                          np.array([0.05]), i[0], 1e-5, 8, release=0.01)  # fmt: skip
+    y = v.copy()  # one row over the bar's axis, 34, 19, 7 and 2 mm past the margin
+    y[i[1], 1] = 0.98 + np.array([0.02, 0.035, 0.047, 0.052])
+    pairs = held._pairs([y], [ends], 0.0)
+    d = segment_gaps(y, ends)[:, 0]
+    pen = 0.054 - d
+    assert pen.max() > 0.03
+    push = np.linalg.norm(freed._contact(y, ends, pairs, True)[1], axis=1)
+    full = np.linalg.norm(held._contact(y, ends, pairs, True)[1], axis=1)
+    deep, shallow = pen > 0.01, (pen > 0) & (pen < 0.01)
+    assert np.allclose(push[deep], 1e4 * 0.01)
+    assert np.allclose(push[shallow], full[shallow])
+    assert (full[deep] > push[deep] + 1.0).all()
+    # the energy is that push's: continuous, linear past the depth
+    e = freed._contact(y, ends, pairs, False, False)[0]
+    expect = 0.5 * 1e4 * (np.minimum(pen, 0.01) * (2 * pen - np.minimum(pen, 0.01)))[pen > 0].sum()
+    assert e == pytest.approx(expect, rel=1e-9)

@@ -160,6 +160,11 @@ class SimConfig:
     layer_bending: float = 10.0
     """A proxy kept off the body by its layers (``thickness``) bends this many times as stiffly
     as its fabric (the implicit solver): it stands for the layers and frills beneath it."""
+    layer_release: float = 0.01
+    """How deep (metres) past its margin's outer edge the body's push on a proxy kept off the
+    body by its layers stops growing (the implicit solver): cloth that a fast limb carried deep
+    into a capsule is pulled out by its own tension instead of held there, stretched. Not for
+    other garments: a high kick pushes a long skirt harder than that, rightly."""
     self_contact_thickness: float = 0.003
     """Distance (metres) that cloth-cloth contacts keep between two pieces of cloth (Style3D).
     It must stay below the gaps a layered garment is built with (the built-in templates stack
@@ -174,10 +179,6 @@ class SimConfig:
     solver's own fixed per-step drag is divided out, see ``core.sim.simulate``)."""
     contact_ke: float = 1.0e4
     """Body-contact stiffness, N/m."""
-    contact_release: float | None = 0.01
-    """How deep (metres) past its margin's outer edge a vertex's push from the body stops
-    growing (the implicit solver; None: never). Cloth that a fast limb carried deep into a
-    capsule is then pulled out by its own tension instead of held there, stretched."""
     max_retries: int = 2
     """Times a frame that blows up is retried, each with twice the steps, before giving up."""
     blowup_strain: float = 5.0
@@ -214,7 +215,7 @@ class SimConfig:
             "collision_margin": self.collision_margin > 0,
             "self_contact_thickness": self.self_contact_thickness > 0,
             "contact_ke": self.contact_ke > 0,
-            "contact_release": self.contact_release is None or self.contact_release > 0,
+            "layer_release": self.layer_release > 0,
             "layer_ke": self.layer_ke >= 0,
             "compression": 0 < self.compression <= 1,
             "layer_bending": self.layer_bending > 0,

@@ -721,7 +721,7 @@ class ImplicitScene:
             pins.indices, config.implicit_tol, config.iterations, config.implicit_norm,
             thickness, config.layer_ke, compression=config.compression,
             rest_bending=config.rest_bending,
-            release=np.inf if config.contact_release is None else config.contact_release,
+            release=config.layer_release if thickness is not None else np.inf,
         )  # fmt: skip
         self.x = garment.vertices.astype(np.float64)
         self.v = np.zeros_like(self.x)
