@@ -36,6 +36,18 @@ def _sheet(n: int = 8, size: float = 0.5):
     return v, np.concatenate([a, b]), i
 
 
+def _numeric_gradient(energy, y: np.ndarray, step: float = 1e-7) -> np.ndarray:
+    """Central differences of ``energy`` (a function of (V, 3) positions) at ``y``: (V, 3)."""
+    num = np.zeros_like(y)
+    for a in range(len(y)):
+        for c in range(3):
+            yp, ym = y.copy(), y.copy()
+            yp[a, c] += step
+            ym[a, c] -= step
+            num[a, c] = (energy(yp) - energy(ym)) / (2 * step)
+    return num
+
+
 def test_bending_form_is_symmetric_and_leaves_a_flat_sheet_alone():
     v, f, _ = _sheet()
     q = bending_matrix(v, f)
@@ -106,14 +118,7 @@ def test_the_soft_layers_contact_gradient_matches_finite_differences():
     expect = 0.5 * (1e4 * np.clip(solid - d, 0, None) ** 2).sum()
     expect += 0.5 * (30.0 * np.clip(reach - d, 0, None) ** 2).sum()
     assert e == pytest.approx(expect, rel=1e-9)
-    num = np.zeros_like(y)
-    for a in range(len(y)):
-        for c in range(3):
-            yp, ym = y.copy(), y.copy()
-            yp[a, c] += 1e-7
-            ym[a, c] -= 1e-7
-            num[a, c] = (cloth._contact(yp, ends, pairs, False, False)[0]
-                         - cloth._contact(ym, ends, pairs, False, False)[0]) / 2e-7  # fmt: skip
+    num = _numeric_gradient(lambda z: cloth._contact(z, ends, pairs, False, False)[0], y)
     assert np.abs(num - g).max() < 1e-5 * np.abs(g).max()
 
 
@@ -328,14 +333,7 @@ def test_the_membrane_soft_in_compression_matches_finite_differences_and_is_the_
     assert e_soft < 0.2 * e_plain  # shortening costs little
     g = np.zeros_like(y)
     np.add.at(g, f.ravel(), soft._membrane(y, False)[1].reshape(-1, 3))
-    num = np.zeros_like(y)
-    for a in range(len(y)):
-        for c in range(3):
-            yp, ym = y.copy(), y.copy()
-            yp[a, c] += 1e-7
-            ym[a, c] -= 1e-7
-            num[a, c] = (soft._membrane(yp, False, False)[0]
-                         - soft._membrane(ym, False, False)[0]) / 2e-7  # fmt: skip
+    num = _numeric_gradient(lambda z: soft._membrane(z, False, False)[0], y)
     assert np.abs(num - g).max() < 1e-5 * np.abs(g).max()
     # stretch is met as before; a triangle squashed below half its length is stiff again
     assert soft._axial(np.array([1.1]), 5e3)[1] == plain._axial(np.array([1.1]), 5e3)[1]
