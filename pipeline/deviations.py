@@ -147,8 +147,7 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             f"ours, implicit BDF2 steps by Newton's method, {config.sim_substeps} a frame, each "
             f"until its update is under {config.sim_implicit_tol * 1000:g} mm "
             + ("root mean square" if config.sim_implicit_norm == "rms" else "at every vertex")
-            + "; its membrane soft in compression (the cloth buckles) and its bending toward "
-            "its rest shape"
+            + "; its bending toward its rest shape"
         )
     else:
         solver = f"newton, Style3D, {steps}, Chebyshev-accelerated, rho {CHEBYSHEV_RHO}"
@@ -161,7 +160,8 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             + solver
             + (
                 ", kept off the body by the depth of the target's layers beneath it, which also "
-                f"make it bend {SimConfig().layer_bending:g} times as stiffly as the fabric"
+                f"make it bend {SimConfig().layer_bending:g} times as stiffly as the fabric and "
+                "buckle in compression"
                 if config.layer_thickness
                 else ""
             )

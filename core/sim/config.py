@@ -149,10 +149,14 @@ class SimConfig:
     the margin met at ``contact_ke`` (the implicit solver; Style3D's contact has one stiffness).
     Frills and the air between them give: as a rigid shell they held a skirt on the hips after
     a kick (docs/decisions.md, "The layers beneath the proxy are soft")."""
-    compression: float = 0.01
+    compression: float = 1.0
     """The membrane's stiffness in compression, as a fraction of its stiffness in stretch (the
-    implicit solver). A coarse mesh's triangle stands for cloth that buckles into folds finer
-    than it, which costs little: at 1 the folds a kick or a kneel made were held in place
+    implicit solver). 1 for a garment of its own: a coarse one (a 96-vertex skirt, one step a
+    frame) blew up at 0.01. A coarse triangle stands for cloth that buckles into folds finer
+    than it, which costs little: see ``layer_compression``."""
+    layer_compression: float = 0.01
+    """``compression`` for a proxy kept off the body by its layers (``thickness``): at 1 the
+    folds a kick, a kneel or a squat made in the quick proxy were held in place
     (docs/decisions.md, "The proxy's cloth")."""
     rest_bending: bool = True
     """Bending toward the garment's rest shape (each hinge's rest bend turned with the cloth),
@@ -218,6 +222,7 @@ class SimConfig:
             "layer_release": self.layer_release > 0,
             "layer_ke": self.layer_ke >= 0,
             "compression": 0 < self.compression <= 1,
+            "layer_compression": 0 < self.layer_compression <= 1,
             "layer_bending": self.layer_bending > 0,
             "contact_gap": self.contact_gap >= 0,
             "damping": self.damping >= 0,

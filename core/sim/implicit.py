@@ -714,12 +714,13 @@ class ImplicitScene:
         self.pins = pins
         radius = np.full(garment.num_vertices, config.collision_margin)
         stiffer = config.layer_bending if thickness is not None else 1.0
+        squeeze = config.layer_compression if thickness is not None else config.compression
         rest = cloth_rest(garment.vertices, garment.faces, fab.density, fab.bend_ke * stiffer)
         mu = np.array([0.0 if is_arm(name) else friction for name in capsules.names])
         self.cloth = ImplicitCloth(
             rest, fab.stretch_ke, config.contact_ke, radius, mu, capsules.radii,
             pins.indices, config.implicit_tol, config.iterations, config.implicit_norm,
-            thickness, config.layer_ke, compression=config.compression,
+            thickness, config.layer_ke, compression=squeeze,
             rest_bending=config.rest_bending,
             release=config.layer_release if thickness is not None else np.inf,
         )  # fmt: skip
