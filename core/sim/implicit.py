@@ -105,25 +105,27 @@ class Hinges:
     weight: np.ndarray
     rest: np.ndarray
 
-    def normals(self, x: np.ndarray) -> np.ndarray:
-        """(H, 3) the unit sum of each hinge's two face normals at positions ``x`` (V, 3)."""
-        p0, p1, p2, p3 = (x[self.stencil[:, i]] for i in range(4))
-        n0 = np.cross(p1 - p0, p2 - p0)
-        n1 = np.cross(p3 - p0, p1 - p0)
-        n0 /= np.maximum(np.linalg.norm(n0, axis=1), 1e-300)[:, None]
-        n1 /= np.maximum(np.linalg.norm(n1, axis=1), 1e-300)[:, None]
-        m = n0 + n1
-        return m / np.maximum(np.linalg.norm(m, axis=1), 1e-12)[:, None]
-
     def rest_force(self, x: np.ndarray) -> np.ndarray:
         """(V, 3) ``sum weight K (rest m)``, ``m`` the hinges' normals at ``x``: the force with
         which bending toward the rest shape's bends, turned with the cloth, pulls each vertex
         (:class:`ImplicitCloth`'s ``rest_bending``)."""
-        b = self.rest[:, None] * self.normals(x)  # (H, 3) each hinge's bend at rest, turned
+        b = self.rest[:, None] * _hinge_normals(x, self.stencil)  # (H, 3) rest bends, turned
         out = np.zeros_like(x)
         np.add.at(out, self.stencil.ravel(), (self.weight[:, None, None] * self.k[:, :, None]
                                               * b[:, None, :]).reshape(-1, 3))
         return out
+
+
+def _hinge_normals(x: np.ndarray, stencil: np.ndarray) -> np.ndarray:
+    """(H, 3) the unit sum of each hinge's two face normals, hinges (H, 4) :class:`Hinges`
+    stencils, at positions ``x`` (V, 3)."""
+    p0, p1, p2, p3 = (x[stencil[:, i]] for i in range(4))
+    n0 = np.cross(p1 - p0, p2 - p0)
+    n1 = np.cross(p3 - p0, p1 - p0)
+    n0 /= np.maximum(np.linalg.norm(n0, axis=1), 1e-300)[:, None]
+    n1 /= np.maximum(np.linalg.norm(n1, axis=1), 1e-300)[:, None]
+    m = n0 + n1
+    return m / np.maximum(np.linalg.norm(m, axis=1), 1e-12)[:, None]
 
 
 def cloth_rest(
@@ -204,10 +206,8 @@ def _hinges(vertices: np.ndarray, faces: np.ndarray) -> Hinges:
     a0 = 0.5 * np.linalg.norm(np.cross(e0, p2 - p0), axis=1)
     a1 = 0.5 * np.linalg.norm(np.cross(e0, p3 - p0), axis=1)
     idx = np.stack([x0, x1, x2, x3], 1)
-    hinges = Hinges(idx, kk, 3.0 / (a0 + a1), np.zeros(len(idx)))
     bent = (kk[:, :, None] * x[idx]).sum(1)  # (H, 3) each hinge's rest bend K x
-    rest = (bent * hinges.normals(x)).sum(1)
-    return Hinges(idx, kk, hinges.weight, rest)
+    return Hinges(idx, kk, 3.0 / (a0 + a1), (bent * _hinge_normals(x, idx)).sum(1))
 
 
 def segment_gaps(y: np.ndarray, ends: np.ndarray) -> np.ndarray:
