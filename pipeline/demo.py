@@ -309,6 +309,18 @@ _CHILD_STAGES: dict[str, Callable] = {
 }
 
 
+def limit_blas_threads(threads: int) -> None:
+    """numpy's and scipy's BLAS on ``threads`` threads in this process, as torch is on
+    ``torch_threads``: the demo gives each of its processes a core, and BLAS's own threads (one
+    per core by default) would spin on the other process's. The frill tiers' simulation, two
+    at a time, ran 1.3x faster on one BLAS thread each (docs/decisions.md, "BLAS on
+    ``torch_threads``")."""
+    import scipy.linalg  # noqa: F401  (scipy loads a BLAS of its own: limit it too)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(threads, user_api="blas")
+
+
 def _stage_worker(
     stage: str, root: str, params: dict, *args: str
 ) -> tuple[float, list[str], object]:
@@ -318,6 +330,7 @@ def _stage_worker(
     lines: list[str] = []
     start = time.perf_counter()
     project, config = Project(root), PipelineConfig.from_params(params)
+    limit_blas_threads(config.torch_threads)
     result = _CHILD_STAGES[stage](project, config, *args, log=lines.append)
     return time.perf_counter() - start, lines, result
 
@@ -481,6 +494,7 @@ def run_demo(
     """
     project = Project(out)
     project.root.mkdir(parents=True, exist_ok=True)
+    limit_blas_threads(config.torch_threads)
     made_by = provenance()
     if force:
         for record in project.root.rglob(RECORD_NAME):
