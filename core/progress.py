@@ -40,7 +40,7 @@ class StageEta:
         self.default_pace = default_pace
         self.reused_below = reused_below
         self.start = self.stage_start = clock()
-        self.done = 0
+        self.finished: set[int] = set()  # stages done, by their index in ``costs``
         self.fraction = 0.0  # of the current stage
         self.ran_seconds = self.ran_cost = 0.0
 
@@ -49,22 +49,37 @@ class StageEta:
         """Number of stages."""
         return len(self.costs)
 
+    @property
+    def done(self) -> int:
+        """Number of stages done."""
+        return len(self.finished)
+
+    def _current(self) -> int:
+        """The first stage not done (``total`` when all are)."""
+        return next((i for i in range(self.total) if i not in self.finished), self.total)
+
     def _current_cost(self) -> float:
-        return self.costs[self.done] if self.done < len(self.costs) else 0.0
+        i = self._current()
+        return self.costs[i] if i < self.total else 0.0
 
     def update(self, done: int, total: int) -> None:
         """Progress within the current stage: ``done`` of ``total`` units."""
         self.fraction = min(max(done / total, 0.0), 1.0) if total > 0 else 0.0
 
-    def stage_done(self, seconds: float | None = None) -> None:
-        """The current stage finished, after ``seconds`` (default: since the previous one)."""
+    def stage_done(self, seconds: float | None = None, index: int | None = None) -> None:
+        """A stage finished, after ``seconds`` (default: since the previous one): the stage at
+        ``index`` in ``costs`` (default: the first not done). Stages that run side by side end
+        out of order: each counts its own cost."""
         now = self.clock()
         seconds = now - self.stage_start if seconds is None else seconds
-        cost = self._current_cost()
+        index = self._current() if index is None else index
+        if not 0 <= index < self.total or index in self.finished:
+            raise ValueError(f"stage {index} is not one of the {self.total} stages left")
+        cost = self.costs[index]
         if seconds >= self.reused_below * cost:
             self.ran_seconds += seconds
             self.ran_cost += cost
-        self.done += 1
+        self.finished.add(index)
         self.fraction = 0.0
         self.stage_start = now
 
@@ -72,7 +87,7 @@ class StageEta:
     def progress(self) -> float:
         """Overall fraction of the cost done, in [0, 1]."""
         total = sum(self.costs)
-        done = sum(self.costs[: self.done]) + self.fraction * self._current_cost()
+        done = sum(self.costs[i] for i in self.finished) + self.fraction * self._current_cost()
         return min(done / total, 1.0) if total > 0 else 1.0
 
     def seconds_left(self) -> float | None:
@@ -87,4 +102,5 @@ class StageEta:
             pace = self.default_pace
         else:
             return None
-        return pace * (sum(self.costs[self.done :]) - self.fraction * self._current_cost())
+        left = sum(c for i, c in enumerate(self.costs) if i not in self.finished)
+        return pace * (left - self.fraction * self._current_cost())

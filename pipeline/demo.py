@@ -240,12 +240,12 @@ class _Progress:
     def seconds_left(self) -> float:
         return self.eta.seconds_left()
 
-    def finished(self, name: str, seconds: float, share: float) -> None:
+    def finished(self, name: str, seconds: float, share: float, index: int | None = None) -> None:
         """A stage that ran in another process beside others took ``seconds`` of its own; the
         estimate counts ``share`` of them (its part of the wall time: ``seconds`` over the
-        number running at once)."""
+        number running at once); ``index``: its place in the costs (default: the next)."""
         self.stage_times[name] = seconds
-        self.eta.stage_done(share)
+        self.eta.stage_done(share, index)
         elapsed = self.clock() - self.start
         self.log(
             f"[{self.eta.done}/{self.eta.total}] {name}: {seconds:.0f} s ({elapsed / 60:.1f} min "
@@ -381,6 +381,9 @@ def _simulate_all(
     targets = [sim for sim in sims if sim[1] == "target"]
     ended: set[str] = set()
     running: dict = {}
+    # each simulation's place in the costs (they end out of order): after the binding's
+    first = progress.eta.done + int(bind)
+    place = {sim: first + i for i, sim in enumerate(sims)}
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
     try:
         while queue or targets or running:
@@ -406,7 +409,9 @@ def _simulate_all(
                     raise _clip_error(exc, motion, which) from None
                 for line in lines:
                     progress.log(line)
-                progress.finished(names[(motion, which)], seconds, seconds / workers)
+                progress.finished(
+                    names[(motion, which)], seconds, seconds / workers, place[(motion, which)]
+                )
                 ended |= {motion} if which == "proxy" else set()
     finally:  # a failed simulation stops the run: the queued ones are dropped
         pool.shutdown(wait=True, cancel_futures=True)

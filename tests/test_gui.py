@@ -650,3 +650,25 @@ def test_the_3d_view_plays_by_itself_and_does_not_freeze(smoke_project, tmp_path
         still = [i for i, d in enumerate(diffs) if d == 0.0]
         assert not still, f"the 3D view stood still while playing (pairs {still}): {diffs}"
         assert proc.poll() is None, log_path.read_text(errors="replace")[-3000:]
+
+
+def test_the_pipeline_tab_says_which_stage_runs_and_the_time_left(tmp_path):
+    """While a job runs, the tab's line names its stage, the stage's number of all, the progress
+    and the time left (read from the one estimator, core.progress.StageEta)."""
+    from types import SimpleNamespace
+
+    from app.gui.model import Eta
+    from app.gui.tabs.pipeline import PipelineTab
+
+    view = SimpleNamespace(
+        job_label=SimpleNamespace(text=""), progress=SimpleNamespace(value=0.0),
+        log_label=SimpleNamespace(text=""),
+    )  # fmt: skip
+    tab = PipelineTab(SimpleNamespace(view=view, project=tmp_path))
+    tab.job_name, tab.job_label, tab.job_running = "all", "simulate", True
+    tab.job_eta = Eta(4)
+    tab.job_eta.stage_done(10.0)
+    tab._last_plot = time.perf_counter() + 1e6  # no plot this time
+    tab.update_widgets()
+    assert view.job_label.text.startswith("all: simulate (2/4), 25%, about ")
+    assert view.progress.value == 0.25

@@ -43,3 +43,21 @@ def test_read_loss_log_keeps_numbers_only(tmp_path):
     assert "vgg" not in rows[1]
     with pytest.raises(FileNotFoundError):
         read_loss_log(tmp_path / "missing.csv")
+
+
+def test_stages_that_end_out_of_order_count_their_own_cost():
+    """Two stages side by side, the costly one ending first: the pace is its own (1 s a unit),
+    not the cheap one's cost over its seconds (which gave a run of 37 minutes a time left of
+    over three hours)."""
+    now = [0.0]
+    eta = StageEta([1.0, 100.0, 10.0], lambda: now[0], default_pace=1.0)
+    now[0] = 100.0
+    eta.stage_done(100.0, index=1)
+    assert eta.done == 1 and eta.seconds_left() == pytest.approx(11.0)
+    assert eta.progress == pytest.approx(100.0 / 111.0)
+    eta.stage_done(1.0)  # the first not done: index 0
+    assert eta.seconds_left() == pytest.approx(10.0)
+    with pytest.raises(ValueError, match="not one of"):
+        eta.stage_done(1.0, index=1)  # done already
+    eta.stage_done(10.0)
+    assert eta.done == 3 and eta.seconds_left() == pytest.approx(0.0)

@@ -147,7 +147,7 @@ class PipelineTab(Part):
                 eta.update(step, total)
         v.progress.value = 1.0 if final and "done" in final else eta.progress
         v.job_label.text = final or (
-            f"{self.job_name}: {self.job_label} ({eta.done_stages + 1}/{eta.stages}), "
+            f"{self.job_name}: {self.job_label} ({min(eta.done + 1, eta.total)}/{eta.total}), "
             f"{eta.progress:.0%}, about {format_seconds(eta.seconds_left())} left"
         )
         v.log_label.text = "\n".join(self.job_log[-3:])[-300:]
