@@ -46,9 +46,19 @@ def test_tiny_bench_writes_table_json_and_plot(tmp_path, capsys):
     (row,) = result["rows"]
     assert row["reference"] == [2, 4, 20] and row["mean_mm"] <= row["p95_mm"]
     assert 0 <= row["frame0_mean_mm"] and 0 <= row["hem_radius_mm"] and 0 <= row["hem_height_mm"]
-    assert row["within_target"] == (row["mean_mm"] <= 10 and row["p95_mm"] <= 25)
+    assert row["converged"] is None and "needs --floor" in table  # the rule needs a floor
     assert (tmp_path / "b" / "sim.png").stat().st_size > 0
     assert format_table(result["rows"], 96, 3).count("\n") == 4
+
+
+def test_converged_is_the_floor_rule():
+    from app.bench.sim import converged
+
+    row = {"mean_mm": 5.0, "floor_mean_mm": 6.0, "strain_max": 0.05, "strain_limit": 0.1}
+    assert converged(row) is True
+    assert converged({**row, "mean_mm": 7.0}) is False  # farther from 2x than the floor
+    assert converged({**row, "strain_max": 0.2}) is False  # stretched past the limit
+    assert converged({k: v for k, v in row.items() if k != "floor_mean_mm"}) is None
 
 
 def test_sim_overrides_name_only_settings_the_bench_may_change():
@@ -83,6 +93,9 @@ def test_floor_runs_the_setting_on_a_moved_garment(tmp_path, capsys):
     (row,) = result["rows"]
     assert 0 <= row["floor_mean_mm"] <= row["floor_p95_mm"]
     assert row["floor_frame0_mean_mm"] >= 0 and row["floor_hem_radius_mm"] >= 0
+    # the floor rule: no farther from the 2x run than from the floor, strain within the limit
+    rule = row["mean_mm"] <= row["floor_mean_mm"] and row["strain_max"] <= row["strain_limit"]
+    assert row["converged"] is rule and f"| {'yes' if rule else 'no'} |" in table
     assert result["sim"]["damping"] == 0.5 and "substeps" not in result["sim"]
 
 
