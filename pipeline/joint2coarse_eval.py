@@ -5,9 +5,10 @@ The motion (a BVH file on any rig, or a procedural kind) is retargeted onto the 
 mannequin, the proxy is simulated under it with the project's fabric, substeps and fps (the
 simulation is cached in a scratch folder outside the project, keyed by a hash of everything
 that decides it), Joint2Coarse predicts the same frames, and the two are compared: vertex error
-(mean, 95th percentile, max, mm), body penetration of both against the capsules the simulation
-collides with, and milliseconds per frame of both. With ``floor``, the proxy is simulated again
-moved 10 um at random (:data:`core.sim.sanity.FLOOR_PERTURBATION_M`): where the cloth buckles
+(mean, 95th percentile, max, mm), and the physics of both alike: body penetration against the
+capsules the simulation collides with, stretch (edge strain, p99 and max) and the hem's radius
+(:func:`pipeline.stages.joint2coarse.proxy_physics`); and milliseconds per frame of both. With
+``floor``, the proxy is simulated again moved 10 um at random (:data:`core.sim.sanity.FLOOR_PERTURBATION_M`): where the cloth buckles
 its folds go one way or the other, so the simulation is only this close to itself, and no
 prediction can be expected to come much closer (README "Simulation quality"). With
 ``realisations`` N, the proxy is simulated N more times, each moved 10 um by offsets of its own
@@ -15,7 +16,8 @@ prediction can be expected to come much closer (README "Simulation quality"). Wi
 a figure measured against one simulation is one draw of where the folds went, and on a motion
 where they can go more than one way it moves by millimetres from one draw to the next. From
 N = 2 on, the mean of the other simulations is scored against each too: the motion's likely
-outcome, about the best any prediction can do (:func:`realisation_errors`).
+outcome, about the best any prediction can do, and each model's **ensemble ratio**, its mean
+error over that one's (:func:`realisation_errors`).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from core.project import Project
 from core.sim import load_cache, save_cache
 from core.sim.sanity import FLOOR_PERTURBATION_M, perturbed
 from pipeline.config import Log, MotionSpec, PipelineConfig, quiet, sim_config
+from pipeline.stages.joint2coarse import proxy_physics
 from pipeline.stages.motions import motion_from_spec
 from pipeline.stages.simulate import proxy_thickness
 
@@ -229,7 +232,8 @@ def evaluate_on_motion(
         start = time.perf_counter()
         stream.push(joints[t], root_rot[t])
         frame_ms.append(1e3 * (time.perf_counter() - start))
-    top = float(project_proxy(project)[0].vertices[:, 1].max())
+    rest = project_proxy(project)[0].vertices
+    top = float(rest[:, 1].max())
     ends, radii = simulation_colliders(config.body, motion, top, sim_config(config).arm_colliders)
     start = time.perf_counter()
     pushed = predict_proxy(net, joints, root_rot, capsules=ends, radii=radii, source=source)
@@ -256,6 +260,14 @@ def evaluate_on_motion(
     realised = None
     if realisations:
         realised = realisation_errors(predictions, [reference.positions, *moved])
+    physics = {
+        name: proxy_physics(positions, rest, reference.faces, ends, radii)
+        for name, positions in (
+            ("prediction", pred), ("prediction_pushed_out", pushed),
+            ("simulation", reference.positions),
+        )
+    }  # fmt: skip
+    sim_hem = np.asarray(physics["simulation"]["hem_radius_mm"])
     return {
         "project": str(project.root),
         "model": net.config.model,
@@ -270,6 +282,14 @@ def evaluate_on_motion(
             "prediction": penetration_summary(pred, ends, radii),
             "prediction_pushed_out": penetration_summary(pushed, ends, radii),
             "simulation": penetration_summary(reference.positions, ends, radii),
+        },
+        "stretch": {name: p["stretch"] for name, p in physics.items()},
+        "hem_radius_mm": {
+            name: {
+                "mean": float(np.mean(p["hem_radius_mm"])),
+                "mean_difference": float(np.mean(np.abs(np.asarray(p["hem_radius_mm"]) - sim_hem))),
+            }
+            for name, p in physics.items()
         },
         "ms_per_frame": {
             "simulation": float(sim_report["ms_per_frame"]),
@@ -301,7 +321,9 @@ def realisation_errors(predictions: dict, simulations: list) -> dict:
     dict: ``simulations`` S; ``error_mm`` {model: ``mean_mm``, ``p95_mm`` (means over the S),
     ``mean_mm_each`` (S,)}; ``between_simulations_mm``: ``mean_mm``, ``p95_mm`` (means over the
     S (S - 1) / 2 pairs), ``mean_mm_each``; ``mean_of_others_mm`` (S >= 3, else None): the mean
-    of the other S - 1 simulations, vertex by vertex, against each one, the same three keys.
+    of the other S - 1 simulations, vertex by vertex, against each one, the same three keys;
+    ``ensemble_ratio`` (S >= 3, else None): {model: its ``mean_mm`` over the mean of the
+    others' ``mean_mm``}, Joint2Coarse's headline (1: as close as the likely outcome comes).
 
     The mean of the others is a prediction no model can beat by much: the likely outcome of the
     motion, estimated from S - 1 draws, scored against a draw it has not seen. A model at that
@@ -322,19 +344,24 @@ def realisation_errors(predictions: dict, simulations: list) -> dict:
     count = len(simulations)
     # the mean of the others of each: (their sum - it) / (S - 1)
     total = np.sum(simulations, axis=0, dtype=np.float64)
+    errors = {
+        model: summary([vertex_errors(pred, sim) for sim in simulations])
+        for model, pred in predictions.items()
+    }
+    others = (
+        summary([vertex_errors((total - sim) / (count - 1), sim) for sim in simulations])
+        if count >= 3
+        else None
+    )
     return {
         "simulations": count,
-        "error_mm": {
-            model: summary([vertex_errors(pred, sim) for sim in simulations])
-            for model, pred in predictions.items()
-        },
+        "error_mm": errors,
         "between_simulations_mm": summary(
             [vertex_errors(a, b) for a, b in combinations(simulations, 2)]
         ),
-        "mean_of_others_mm": summary(
-            [vertex_errors((total - sim) / (count - 1), sim) for sim in simulations]
-        )
-        if count >= 3
+        "mean_of_others_mm": others,
+        "ensemble_ratio": {m: e["mean_mm"] / others["mean_mm"] for m, e in errors.items()}
+        if others and others["mean_mm"] > 0
         else None,
     }
 
@@ -369,27 +396,36 @@ def format_report(report: dict) -> str:
     """The report as a few lines of text."""
     e, q = report["error_mm"], report["error_mm_pushed_out"]
     p, ms = report["penetration"], report["ms_per_frame"]
+    st, hem = report["stretch"], report["hem_radius_mm"]
     lines = [
         f"{report['motion']}: {report['frames']} frames at {report['fps']:g} fps, "
         f"{report['vertices']} proxy vertices",
         f"{'':28s} {'mean mm':>8s} {'p95 mm':>8s} {'max mm':>8s} {'inside %':>9s} "
-        f"{'depth max mm':>13s} {'ms/frame':>9s}",
+        f"{'depth max mm':>13s} {'stretch p99':>12s} {'max':>6s} {'hem radius mm':>14s} "
+        f"{'ms/frame':>9s}",
     ]
     rows = (
-        (f"Joint2Coarse ({report['model']})", e, p["prediction"], ms["prediction"]),
-        ("Joint2Coarse, pushed out", q, p["prediction_pushed_out"],
+        (f"Joint2Coarse ({report['model']})", e, "prediction", ms["prediction"]),
+        ("Joint2Coarse, pushed out", q, "prediction_pushed_out",
          ms["prediction"] + ms["push_out"]),
-        ("simulation", None, p["simulation"], ms["simulation"]),
+        ("simulation", None, "simulation", ms["simulation"]),
     )  # fmt: skip
-    for name, err, pen, t in rows:
+    for name, err, key, t in rows:
         errs = (
             f"{err['mean_mm']:8.1f} {err['p95_mm']:8.1f} {err['max_mm']:8.1f}"
             if err
             else f"{'-':>8s} {'-':>8s} {'-':>8s}"
         )
+        pen, s = p[key], st[key]
         lines.append(
-            f"{name:28s} {errs} {pen['inside_percent']:9.2f} {pen['max_mm']:13.1f} {t:9.2f}"
+            f"{name:28s} {errs} {pen['inside_percent']:9.2f} {pen['max_mm']:13.1f} "
+            f"{s['p99']:12.3f} {s['max']:6.3f} {hem[key]['mean']:14.1f} {t:9.2f}"
         )
+    lines.append(
+        "the hem's radius (its mean distance from the waist's axis) differs from the "
+        f"simulation's by {hem['prediction']['mean_difference']:.1f} mm a frame on average "
+        f"({hem['prediction_pushed_out']['mean_difference']:.1f} pushed out)"
+    )
     for model, err in report["compare_error_mm"].items():
         lines.append(
             f"{'(' + model + ' model, beside it)':28s} {err['mean_mm']:8.1f} {err['p95_mm']:8.1f} "
@@ -415,6 +451,12 @@ def format_report(report: dict) -> str:
             lines.append(
                 f"  {name:26s} {e['mean_mm']:8.1f} {e['p95_mm']:8.1f}   "
                 f"({min(e['mean_mm_each']):.1f} to {max(e['mean_mm_each']):.1f})"
+            )
+        if realised.get("ensemble_ratio"):
+            lines.append(
+                "ensemble ratio (mean error over the mean of the others', 1 = the likely "
+                "outcome's): "
+                + ", ".join(f"{m} {r:.2f}x" for m, r in realised["ensemble_ratio"].items())
             )
     seconds = report["error_mm_per_second"]
     if len(seconds) > 1:

@@ -66,6 +66,12 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     for key in ("prediction", "prediction_pushed_out", "simulation"):
         assert 0.0 <= pen[key]["inside_percent"] <= 100.0 and pen[key]["max_mm"] >= 0.0
     assert pen["prediction_pushed_out"]["inside_percent"] == 0.0
+    # stretch and the hem's radius beside the penetration, for prediction and simulation alike
+    stretch, hem = report["stretch"], report["hem_radius_mm"]
+    for key in ("prediction", "prediction_pushed_out", "simulation"):
+        assert 0.0 <= stretch[key]["p99"] <= stretch[key]["max"] < 10.0
+        assert 50.0 < hem[key]["mean"] < 1000.0 and hem[key]["mean_difference"] >= 0.0
+    assert hem["simulation"]["mean_difference"] == 0.0 and hem["prediction"]["mean_difference"] > 0
     # The smoke preset trains our model beside the paper's: both are scored.
     assert report["model"] == "paper" and set(report["compare_error_mm"]) == {"ours"}
     assert report["compare_error_mm"]["ours"]["mean_mm"] > 0
@@ -80,6 +86,9 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     code, out, _ = dng(*args)
     assert code == 0
     assert all(w in out for w in ("Joint2Coarse", "pushed out", "simulation", "mean mm"))
+    assert (
+        "stretch p99" in out and "hem radius mm" in out and "differs from the simulation's" in out
+    )
     assert "mean error each second (mm)" in out and "the worst from" in out
     assert again["simulation_floor_mm"] is None and "moved 10 um" not in out
     assert again["simulation_floor_mm_per_second"] is None and "floor each second" not in out
@@ -117,9 +126,14 @@ def test_eval_joint2coarse_on_a_kind(smoke_project, scratch, dng):
     others = r["mean_of_others_mm"]
     assert len(others["mean_mm_each"]) == 3 and others["mean_mm"] > 0
     assert others["mean_mm"] <= np.mean(between) + 1e-9
+    ratio = r["ensemble_ratio"]  # each model's mean error over the mean of the others'
+    assert set(ratio) == {"paper", "ours"}
+    assert all(
+        abs(ratio[m] - r["error_mm"][m]["mean_mm"] / others["mean_mm"]) < 1e-9 for m in ratio
+    )
     code, out, _ = dng(*args, "--realisations", 2)
     assert code == 0 and "against 3 simulations" in out and "each pair" in out
-    assert "the mean of the others" in out
+    assert "the mean of the others" in out and f"paper {ratio['paper']:.2f}x" in out
     code, _, err = dng(*args, "--realisations", 0)
     assert code == 2 and "--realisations must be at least 1" in err
 
@@ -167,3 +181,47 @@ def test_eval_joint2coarse_refuses_bad_input(smoke_project, scratch, dng, tmp_pa
     code, _, err = dng("eval", "joint2coarse", bare, "--motion", "walk", "--frames", 40)
     assert code == 2 and "joint2coarse.pt" in err and len(err.strip().splitlines()) == 1
     assert not scratch.exists()  # nothing simulated for refused input
+
+
+def test_the_ensemble_ratio_has_a_known_answer():
+    """Three simulations 1 mm apart along x (0, 1, 2 mm): the mean of the other two is 1.5, 0
+    and 1.5 mm from each (1 mm on average); a prediction on the middle one is 1, 0 and 1 mm
+    from them (2/3 mm): its ensemble ratio is 2/3. One on the first is 0, 1, 2 mm off: 1x."""
+    from pipeline.joint2coarse_eval import realisation_errors
+
+    base = np.zeros((4, 5, 3))
+    sims = [base + np.array([0.001 * i, 0.0, 0.0]) for i in range(3)]
+    r = realisation_errors({"middle": sims[1], "first": sims[0]}, sims)
+    assert np.allclose(r["mean_of_others_mm"]["mean_mm_each"], [1.5, 0.0, 1.5])
+    assert np.isclose(r["error_mm"]["middle"]["mean_mm"], 2 / 3)
+    assert np.isclose(r["ensemble_ratio"]["middle"], 2 / 3)
+    assert np.isclose(r["ensemble_ratio"]["first"], 1.0)
+    # two simulations have no mean of the others: no ratio
+    assert realisation_errors({"middle": sims[1]}, sims[:2])["ensemble_ratio"] is None
+
+
+def test_proxy_physics_known_answers():
+    """A skirt stretched 10 % about its waist's axis: stretch 0.1 on its round edges, its hem's
+    radius 1.1x; the skirt as it is: no stretch; one vertex inside a capsule: penetration."""
+    from pipeline.stages.joint2coarse import proxy_physics
+    from tests.sim_helpers import frustum_skirt
+
+    skirt = frustum_skirt()
+    rest = skirt.vertices.astype(np.float64)
+    axis = rest.mean(0)
+    wide = rest.copy()
+    wide[:, [0, 2]] = axis[[0, 2]] + 1.1 * (rest[:, [0, 2]] - axis[[0, 2]])
+    far = np.array([[[[5.0, 0.0, 0.0], [5.0, 1.0, 0.0]]]])  # a capsule far from the skirt
+    both = np.stack([rest, wide])
+    phys = proxy_physics(both, rest, skirt.faces, np.repeat(far, 2, 0), np.array([0.05]))
+    radius = phys["hem_radius_mm"]
+    assert np.isclose(radius[1] / radius[0], 1.1, rtol=1e-3)
+    assert np.isclose(phys["stretch"]["max"], 0.1, atol=1e-3)
+    assert phys["penetration_mm"]["fraction"] == 0.0
+    alone = proxy_physics(rest[None], rest, skirt.faces, far, np.array([0.05]))
+    assert abs(alone["stretch"]["max"]) < 1e-6 and alone["stretch"]["p99"] < 1e-6
+    # a capsule 2 cm across round the first vertex: it is 2 cm inside, the rest outside
+    v = rest[0]
+    inside = np.array([[[v - [0, 0.01, 0], v + [0, 0.01, 0]]]])
+    pen = proxy_physics(rest[None], rest, skirt.faces, inside, np.array([0.02]))["penetration_mm"]
+    assert np.isclose(pen["max"], 20.0, atol=0.5) and 0 < pen["fraction"] < 0.01

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "retarget a motion onto the project's body, simulate the proxy with the project's "
         "fabric, substeps and fps (cached outside the project, in $XDG_CACHE_HOME/garment-studio "
         "or ~/.cache/garment-studio), run Joint2Coarse on it and report vertex error (mean, "
-        "p95, max, mm), body penetration and ms per frame of both",
+        "p95, max, mm), body penetration, stretch and the hem's radius of both, and ms per frame",
     )
     j.add_argument(
         "--motion",

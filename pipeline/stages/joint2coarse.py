@@ -204,7 +204,6 @@ def _evaluate_joint2coarse(
     and max over every edge and frame) and the hem's radius per frame (its mean distance from the
     axis through the waist's centroid, mm) are reported for the prediction and the simulation
     alike: a prediction close in millimetres but stretched or inside the body is not close."""
-    from core.sim.embed import strain_stats  # scipy: not at the CLI's import
     from training.joint2coarse import (
         Joint2CoarseStream,
         joint2coarse_inputs,
@@ -212,7 +211,6 @@ def _evaluate_joint2coarse(
         reconstruct_proxy,
         vertex_errors,
     )
-    from training.joint2coarse.collision import penetration_summary
 
     motion = load_project_motion(project, name)
     joints, root_rot = joint2coarse_inputs(motion)
@@ -234,21 +232,10 @@ def _evaluate_joint2coarse(
     pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
     write_npz(out / f"pred-{name}.npz", positions=pred)
 
-    hem, waist = hem_indices(rest, reference.faces), waist_indices(rest, reference.faces)
-
     def measured(positions: np.ndarray) -> dict:
-        pen = penetration_summary(positions, capsules, radii)
-        strain = strain_stats(positions, rest, reference.faces)
-        radius = 1e3 * hem_radius(positions, hem, waist)
         return {
             "error_mm": asdict(vertex_errors(positions, reference.positions)),
-            "penetration_mm": {
-                "mean": pen["mean_mm"],
-                "max": pen["max_mm"],
-                "fraction": pen["inside_percent"] / 100.0,
-            },
-            "stretch": {"p99": strain.stretch_p99, "max": strain.stretch_max},
-            "hem_radius_mm": [round(float(r), 2) for r in radius],
+            **proxy_physics(positions, rest, reference.faces, capsules, radii),
         }
 
     if picture:
@@ -273,6 +260,47 @@ def _evaluate_joint2coarse(
             "median": float(np.median(frame_ms)),
             "p95": float(np.percentile(frame_ms, 95)),
         },
+    }
+
+
+def proxy_physics(
+    positions: np.ndarray,
+    rest: np.ndarray,
+    faces: np.ndarray,
+    capsules: np.ndarray,
+    radii: np.ndarray,
+) -> dict:
+    """A proxy's motion judged as cloth, for a prediction and a simulation alike: its
+    penetration of the body's capsules, its edges' stretch against the rest shape and its hem's
+    radius per frame.
+
+    Parameters
+    ----------
+    positions : (T, V, 3) metres; rest : (V, 3) the proxy at rest; faces : (F, 3) int
+    capsules : (T, K, 2, 3) the body's capsules per frame; radii : (K,)
+
+    Returns
+    -------
+    dict: ``penetration_mm`` (``mean``, ``max`` mm over every frame and vertex, ``fraction`` of
+    them inside), ``stretch`` (``p99``, ``max`` of the edges' strain over every edge and frame),
+    ``hem_radius_mm`` (T,) the hem's mean distance from the axis through the waist's centroid
+    (:func:`core.sim.sanity.hem_radius`)
+    """
+    from core.sim.embed import strain_stats  # scipy: not at the CLI's import
+    from training.joint2coarse.collision import penetration_summary
+
+    pen = penetration_summary(positions, capsules, radii)
+    strain = strain_stats(positions, rest, faces)
+    hem, waist = hem_indices(rest, faces), waist_indices(rest, faces)
+    radius = 1e3 * hem_radius(positions, hem, waist)
+    return {
+        "penetration_mm": {
+            "mean": pen["mean_mm"],
+            "max": pen["max_mm"],
+            "fraction": pen["inside_percent"] / 100.0,
+        },
+        "stretch": {"p99": strain.stretch_p99, "max": strain.stretch_max},
+        "hem_radius_mm": [round(float(r), 2) for r in radius],
     }
 
 
