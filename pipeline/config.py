@@ -65,8 +65,7 @@ class PipelineConfig:
     """Keep the simulated proxy off the body by the depth of the target's layers beneath it
     (``core.sim.thickness``), as the layered garment is (docs/decisions.md, "layer_thickness")."""
     target_contact: bool = True
-    """Keep the embedded target out of the body (``core.sim.embed.BodyContact``), so its inner
-    layers do not sink into the hips (docs/decisions.md, "target_contact")."""
+    """Keep the embedded target's inner layers out of the hips (docs/decisions.md, "target_contact")."""
     views_per_frame: int = 5
     """Cameras per training frame (the paper: 10); each gives one sample of frames t-1, t, t+1."""
     frame_stride: int = 2
@@ -92,12 +91,13 @@ class PipelineConfig:
     baseline_overrides: dict = field(default_factory=dict)
     """Fields changed from every baseline's preset, e.g. ``{"lr_decay_from": 0.5}`` (``--set``)."""
     ablations: tuple[str, ...] = ()
-    """Renderer ablations trained and scored beside ours (:data:`ABLATION_KINDS`): ``no-motion``,
-    ``no-temporal``, ``views-N``, ``template-NAME``; each costs about one renderer training."""
+    """Renderer ablations scored beside ours (:data:`ABLATION_KINDS`), each one more training."""
     proxy_template: str | None = None
     """A built-in coarse template fitted to the target instead of a derived proxy (an ablation)."""
     inception_path: str = ""
     """InceptionV3 weights (torchvision layout) for FID; empty: FID is reported unavailable."""
+    lpips_path: str = ""
+    """``lpips`` AlexNet weights (``training.lpips``) for tLP; empty: tLP is reported unavailable."""
     joint2coarse_extra: tuple[MotionSpec, ...] = ()
     """More training motions for Joint2Coarse only, named apart from the test motions."""
     joint2coarse_validation: tuple[MotionSpec, ...] = ()

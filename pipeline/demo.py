@@ -11,6 +11,8 @@ from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
+from threadpoolctl import threadpool_limits
+
 from core.errors import InputError
 from core.fileio import atomic_open, write_json
 from core.progress import StageEta
@@ -316,7 +318,6 @@ def limit_blas_threads(threads: int) -> None:
     at a time, ran 1.3x faster on one BLAS thread each (docs/decisions.md, "BLAS on
     ``torch_threads``")."""
     import scipy.linalg  # noqa: F401  (scipy loads a BLAS of its own: limit it too)
-    from threadpoolctl import threadpool_limits
 
     threadpool_limits(threads, user_api="blas")
 
@@ -854,16 +855,7 @@ def _renderer_markdown(report: dict) -> list[str]:
                 "section.",
             ]
     first = next(iter(ev["motions"].values()), {})
-    fid = next(iter(first.values()), {}).get("fid", {})
-    if fid.get("value") is None:
-        lines += ["", f"FID and video FID: {fid.get('status', 'unavailable')}."]
-    else:
-        lines += ["", "| motion | method | FID | video FID |", "| --- | --- | --- | --- |"]
-        for motion, methods in ev["motions"].items():
-            for name, m in methods.items():
-                lines.append(
-                    f"| {motion} | {name} | {m['fid']['value']:.2f} | {m['video_fid']['value']:.2f} |"
-                )
+    lines += _weights_metrics_markdown(ev["motions"], next(iter(first.values()), {}))
     lines += ["", "Ground truth (top row) and every method on the same frames:", ""]
     shown = [*([v["motion"]] if v else []), *ev["motions"], *([p["motion"]] if p else [])]
     lines += [f"![{m}](eval/{m}/compare.png)" for m in shown]
@@ -878,6 +870,34 @@ def _renderer_markdown(report: dict) -> list[str]:
                 f"{ms['total']:.0f} ms/frame median (Joint2Coarse {ms['joint2coarse']:.2f}, body "
                 f"background {ms['background']:.0f}, raster + network {ms['raster+network']:.0f})"
             )
+    return lines
+
+
+def _weights_metrics_markdown(motions: dict, first: dict) -> list[str]:
+    """FID, video FID and tLP (tLP lower is better: how far the render's change from frame to
+    frame is from the ground truth's, perceptually) per unseen motion and method, or each one's
+    "unavailable" line where no weights file was given (a report made before tLP existed: no
+    tLP line)."""
+    lines = []
+    columns = [
+        (key, label)
+        for key, label in (("fid", "FID"), ("video_fid", "video FID"), ("tlp", "tLP"))
+        if key in first
+    ]
+    missing = [(k, label) for k, label in columns if first[k].get("value") is None]
+    for key, label in missing:
+        lines += ["", f"{label}: {first[key].get('status', 'unavailable')}."]
+    shown = [c for c in columns if c not in missing]
+    if shown:
+        lines += [
+            "",
+            "| motion | method | " + " | ".join(label for _, label in shown) + " |",
+            "| --- | --- |" + " --- |" * len(shown),
+        ]
+        for motion, methods in motions.items():
+            for name, m in methods.items():
+                cells = " | ".join(f"{m[k]['value']:.3f}" for k, _ in shown)
+                lines.append(f"| {motion} | {name} | {cells} |")
     return lines
 
 

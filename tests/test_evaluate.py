@@ -14,9 +14,9 @@ from training.baselines import synthetic_batch
 from training.evaluate import (
     EvalConfig,
     evaluate_motion,
-    fid_scores,
     garment_region,
     next_frame_batch,
+    weights_scores,
 )
 
 
@@ -78,16 +78,24 @@ def test_fid_needs_weights_and_uses_them(tmp_path):
     results, _ = evaluate_motion(
         {"grey": (_Grey(), data)}, EvalConfig(batch_size=3, sheet_samples=1)
     )
-    off = fid_scores(results["grey"], EvalConfig())
+    off = weights_scores(results["grey"], EvalConfig())
     assert off["fid"]["value"] is None and "unavailable" in off["fid"]["status"]
     assert off["video_fid"]["value"] is None
+    assert off["tlp"]["value"] is None and "no LPIPS weights" in off["tlp"]["status"]
     torch.manual_seed(0)
     weights = tmp_path / "inception_small.pth"
     torch.save(InceptionV3(width_scale=0.125).state_dict(), weights)
     cfg = EvalConfig(inception_path=str(weights), inception_width_scale=0.125)
-    on = fid_scores(results["grey"], cfg)
+    on = weights_scores(results["grey"], cfg)
     assert on["fid"]["value"] is not None and on["fid"]["value"] > 0
-    assert on["video_fid"]["value"] is not None
+    assert on["video_fid"]["value"] is not None and on["tlp"]["value"] is None
+    from training.lpips import LPIPS
+
+    lpips_file = tmp_path / "lpips_small.pth"
+    torch.save(LPIPS(width_scale=0.25).state_dict(), lpips_file)
+    cfg = EvalConfig(lpips_path=str(lpips_file), lpips_width_scale=0.25)
+    tlp = weights_scores(results["grey"], cfg)["tlp"]
+    assert tlp["status"] == "ok" and tlp["pairs"] == len(data) and tlp["value"] >= 0
 
 
 def _copy(project, tmp_path):

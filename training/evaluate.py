@@ -9,8 +9,8 @@ so every sample gives two scored frames and one consecutive pair for the tempora
 Metrics (:mod:`training.metrics`): per-frame MSE (pixel values in [0, 1]), PSNR and SSIM, their
 masked versions on the garment region (the union of the ground-truth garment mask and the proxy's
 coverage, which does not depend on the method), and flicker. FID and the video-FID stand-in
-(:mod:`training.inception`) need an InceptionV3 weights file; without one they are reported as
-unavailable.
+(:mod:`training.inception`) need an InceptionV3 weights file, and tLP (:mod:`training.lpips`) an
+LPIPS weights file; without one they are reported as unavailable.
 """
 
 from __future__ import annotations
@@ -39,6 +39,10 @@ class EvalConfig(PlainConfig):
     FID; empty: both are reported as unavailable."""
     inception_width_scale: float = 1.0
     """Width of the InceptionV3 the weights belong to (1.0: torchvision's; smaller for tests)."""
+    lpips_path: str = ""
+    """``lpips`` AlexNet weights (:mod:`training.lpips`) for tLP; empty: reported unavailable."""
+    lpips_width_scale: float = 1.0
+    """Width of the AlexNet the LPIPS weights belong to (1.0: the real one; smaller for tests)."""
     sheet_samples: int = 4
     """Test samples shown per motion in the comparison picture."""
 
@@ -139,13 +143,18 @@ def evaluate_motion(
     return results, gt_tiles
 
 
-def fid_scores(result: MethodResult, config: EvalConfig) -> dict:
-    """FID of frame t and the video-FID stand-in, or their "unavailable" records."""
+def weights_scores(result: MethodResult, config: EvalConfig) -> dict:
+    """The metrics that need a network's weights file: FID of frame t, the video-FID stand-in
+    and tLP over the consecutive pairs, or their "unavailable" records."""
     from training.inception import InceptionConfig, fid, video_fid
+    from training.lpips import tlp
 
     cfg = InceptionConfig(width_scale=config.inception_width_scale)
     weights = config.inception_path or None
     return {
         "fid": fid(torch.cat(result.real_t), torch.cat(result.frames_t), weights, cfg).to_dict(),
         "video_fid": video_fid(result.real_pairs, result.pairs, weights, cfg).to_dict(),
+        "tlp": tlp(
+            result.real_pairs, result.pairs, config.lpips_path or None, config.lpips_width_scale
+        ).to_dict(),
     }

@@ -31,8 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "each from unseen cameras, with our renderer (on "
             "Joint2Coarse's proxy, and on the simulated proxy) and every trained baseline; "
             "report per-frame MSE (mean and std, pixel values in [0, 1]), PSNR, SSIM, their "
-            "garment-region versions, the garment's GMSD and detail ratio, flicker, and FID / "
-            "video FID when an InceptionV3 weights "
+            "garment-region versions, the garment's GMSD and detail ratio, flicker, tOF, FID / "
+            "video FID when an InceptionV3 weights file is given and tLP when an LPIPS weights "
             "file is given. Writes PROJECT/eval/report.json and PROJECT/eval/MOTION/compare.png. "
             "Builds the "
             "test sets first when they are missing; the renderer and baselines must be trained "
@@ -76,6 +76,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--inception",
         metavar="WEIGHTS.pth",
         help="torchvision InceptionV3 weights (inception_v3_google-*.pth) for FID",
+    )
+    p.add_argument(
+        "--lpips",
+        metavar="WEIGHTS.pth",
+        help="the lpips package's AlexNet weights (torch.save(lpips.LPIPS(net='alex')"
+        ".state_dict(), FILE)) for tLP",
     )
     p.add_argument(
         "--ablations",
@@ -157,6 +163,11 @@ def run_renderers(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise InputError("Inception weights file not found", path)
         config = replace(config, inception_path=str(path.resolve()))
+    if args.lpips:
+        path = Path(args.lpips)
+        if not path.is_file():
+            raise InputError("LPIPS weights file not found", path)
+        config = replace(config, lpips_path=str(path.resolve()))
     if args.ablations:
         config = replace(config, ablations=tuple(args.ablations))
         for name in config.ablations:

@@ -105,7 +105,7 @@ def stage_eval_motion(
     import torch
 
     from training.baselines import load_for_evaluation
-    from training.evaluate import EvalConfig, evaluate_motion, fid_scores
+    from training.evaluate import EvalConfig, evaluate_motion, weights_scores
     from training.metrics import METRICS as metric_names
 
     protocols = eval_motions(config)
@@ -114,7 +114,7 @@ def stage_eval_motion(
     methods = eval_methods(project, config)
     if motion == config.train_motion.name:
         methods = {n: m for n, m in methods.items() if m[2] == project.root}
-    eval_cfg = EvalConfig(inception_path=config.inception_path)
+    eval_cfg = EvalConfig(inception_path=config.inception_path, lpips_path=config.lpips_path)
     inputs = [path for path, _, _ in methods.values()]
     for root in sorted({r for _, _, r in methods.values()}):
         data = Project(root)
@@ -151,7 +151,7 @@ def stage_eval_motion(
             scores[name] = {
                 "samples": len(data[(methods[name][2], methods[name][1])]),
                 **r.metrics.summary(),
-                **fid_scores(r, eval_cfg),
+                **weights_scores(r, eval_cfg),
             }
             values[name] = {
                 metric: [v for v in vs if math.isfinite(v)]
