@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -70,7 +71,7 @@ def main() -> int:
         project = Project(args.project)
         config = project_config(project)
         if args.motion:
-            motions = [(m, eval_motion(config, m, args.frames)) for m in args.motion]
+            motions = [(Path(m).stem, eval_motion(config, m, args.frames)) for m in args.motion]
         else:
             motions = [
                 (s.name, load_project_motion(project, s.name))
@@ -81,7 +82,7 @@ def main() -> int:
             report = evaluate_on_motion(
                 project, config, motion, name, log, realisations=args.realisations
             )
-            rows.append(ensemble_row(report))
+            rows.append({**ensemble_row(report), "motion": name})
             row = rows[-1]
             log(
                 f"{name}: {row['ensemble_ratio']:.2f}x (ours {row['ours_mm']:.1f} mm, the mean "
