@@ -10,7 +10,7 @@ capsules the simulation collides with, stretch (edge strain, p99 and max) and th
 (:func:`pipeline.stages.joint2coarse.proxy_physics`); and milliseconds per frame of both. With
 ``floor``, the proxy is simulated again moved 10 um at random (:data:`core.sim.sanity.FLOOR_PERTURBATION_M`): where the cloth buckles
 its folds go one way or the other, so the simulation is only this close to itself, and no
-prediction can be expected to come much closer (README "Simulation quality"). With
+prediction can be expected to come much closer (docs/decisions.md, "What counts as converged"). With
 ``realisations`` N, the proxy is simulated N more times, each moved 10 um by offsets of its own
 (the first is the floor's), and every model is scored against each of the N + 1 simulations:
 a figure measured against one simulation is one draw of where the folds went, and on a motion

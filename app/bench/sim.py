@@ -151,8 +151,8 @@ def hem_stats_distance(positions, reference, hem, waist) -> tuple[float, float]:
     frames of the absolute difference of the hem's mean radius about the waist's axis and of
     its mean height (mm). Unlike vertex distances they do not see a fold turned about the
     axis; they do see how far the folds stand out, and on the quick proxy two converged runs
-    (``--set solver=implicit --floor``) still differ by 7-33 mm in them (README "Simulation
-    quality"): a measure to read beside the vertex distances, not a convergence target.
+    (``--set solver=implicit --floor``) still differ by 7-33 mm in them (docs/decisions.md,
+    "What counts as converged"): a measure to read beside the vertex distances, not a convergence target.
 
     Parameters
     ----------

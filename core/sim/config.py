@@ -86,8 +86,8 @@ class SimConfig:
     Gauss-Seidel, needs many more iterations before the fabric stops stretching) or
     ``implicit`` (ours, :mod:`core.sim.implicit`: implicit steps (``implicit_order``) solved by
     Newton's method with a direct sparse solve, each to ``implicit_tol``; a single surface only;
-    converged at Style3D medium's cost at 2 steps a frame, ``implicit_norm="rms"``: README
-    "Simulation quality")."""
+    converged at Style3D medium's cost at 2 steps a frame, ``implicit_norm="rms"``: docs/decisions.md,
+    "sim_solver = implicit")."""
     substeps: int = 16
     """Solver steps per 1/30 s of motion. Clips at other frame rates get the same physical time
     step or a finer one: ``ceil(substeps * 30 / fps)`` steps per frame, at least one."""
@@ -109,7 +109,7 @@ class SimConfig:
     """``solver="implicit"``: how a Newton update meets ``implicit_tol``: ``max``, its largest
     vertex's; ``rms``, its root mean square over the vertices. Where the cloth buckles, a few
     vertices can keep moving from one fold to the next for many iterations while the rest has
-    settled; ``rms`` stops there (README "Simulation quality" measures both)."""
+    settled; ``rms`` stops there (docs/decisions.md, "sim_solver = implicit", measures both)."""
     linear_iterations: int = 10
     """Conjugate-gradient iterations of each Style3D iteration's linear solve (newton's
     default is 10). Too few and the waist's motion does not reach the hem within a step: the

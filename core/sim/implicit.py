@@ -2,7 +2,7 @@
 
 Style3D (newton's projective dynamics) iterates with the rest shape's matrix, and near the body
 its iterations converge slowly: one quick step (16 iterations) ends 9.5 mm from the same step
-converged on the quick proxy's walk (README "Simulation quality"). Here every step minimises
+converged on the quick proxy's walk (docs/decisions.md, "sim_solver = implicit"). Here every step minimises
 the implicit objective over the free vertices' end-of-step positions ``y``::
 
     E(y) = |y - x~ - h^2 g|^2_M / (2 h^2) + stretch(y) + bend(y) + contact(y) + friction(y)
@@ -37,8 +37,8 @@ quick project's 989-vertex proxy, at 8 steps a frame to 0.1 mm at every vertex, 
 875 ms a frame; at 2 steps to 0.3 mm root mean square (the quick preset's ground truth) 96 to
 147 ms (about a quarter less since the contact candidates are pruned by the step start's
 gaps, the same steps to the bit), and its runs are as far from runs twice as fine as from
-themselves on a 10 um nudge: the converged cloth's folds go one way or another (README "Simulation quality", ``dng bench
-sim --set solver=implicit --floor``).
+themselves on a 10 um nudge: the converged cloth's folds go one way or another (docs/decisions.md, "What counts as converged"; ``dng
+bench sim --set solver=implicit --floor``).
 """
 
 from __future__ import annotations
@@ -111,8 +111,11 @@ class Hinges:
         (:class:`ImplicitCloth`'s ``rest_bending``)."""
         b = self.rest[:, None] * _hinge_normals(x, self.stencil)  # (H, 3) rest bends, turned
         out = np.zeros_like(x)
-        np.add.at(out, self.stencil.ravel(), (self.weight[:, None, None] * self.k[:, :, None]
-                                              * b[:, None, :]).reshape(-1, 3))
+        np.add.at(
+            out,
+            self.stencil.ravel(),
+            (self.weight[:, None, None] * self.k[:, :, None] * b[:, None, :]).reshape(-1, 3),
+        )
         return out
 
 
