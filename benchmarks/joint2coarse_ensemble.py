@@ -15,8 +15,9 @@ physics of prediction and simulation: body penetration (share of vertices inside
 (p99 of the edges' strain) and the hem's radius (the prediction's mean difference from the
 simulation's, mm).
 
-Prints one row per motion and the mean ratio; ``--json``: ``{"rows": [...], "mean_ratio":
-...}`` for ``dng report PROJECT --results docs/results.md --bench joint2coarse-ensemble=FILE``.
+Prints one row per motion and the mean ratio; ``--json``: ``{"command": ..., "rows": [...],
+"mean_ratio": ...}`` for ``dng report PROJECT --results docs/results.md --bench
+joint2coarse-ensemble=FILE`` (the command names motion files by their names alone).
 """
 
 from __future__ import annotations
@@ -97,7 +98,13 @@ def main() -> int:
         return 2
     mean = float(np.mean([r["ensemble_ratio"] for r in rows])) if rows else None
     if args.json:
-        print(json.dumps({"rows": rows, "mean_ratio": mean, "realisations": args.realisations}))
+        command = "python benchmarks/joint2coarse_ensemble.py PROJECT" + "".join(
+            f" --motion {Path(m).name}" for m in args.motion
+        )
+        command += f" --frames {args.frames}" if args.frames else ""
+        command += f" --realisations {args.realisations}"
+        out = {"command": command, "rows": rows, "mean_ratio": mean}
+        print(json.dumps({**out, "realisations": args.realisations}))
     elif mean is not None:
         print(f"mean ensemble ratio over {len(rows)} motions: {mean:.2f}x")
     return 0

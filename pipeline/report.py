@@ -308,9 +308,11 @@ def _run_time_markdown(report: dict) -> list[str]:
 
 def _bench_markdown(name: str, data) -> list[str]:
     """A benchmark's JSON as a table: a list of flat records (or ``{"rows": [...]}``), else its
-    top-level figures."""
+    top-level figures; the command that made it first, where the JSON names it (``command``)."""
     rows = data.get("rows") if isinstance(data, dict) else data
     lines = ["", f"### {name}", ""]
+    if isinstance(data, dict) and data.get("command"):
+        lines += [f"Made by `{data['command']}`.", ""]
     if isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows):
         keys = [k for k in rows[0] if not isinstance(rows[0][k], (dict, list))]
         lines += ["| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]

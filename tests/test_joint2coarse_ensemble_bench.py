@@ -34,7 +34,10 @@ def test_ensemble_rows(smoke_project, tmp_path, monkeypatch):
     assert result["mean_ratio"] == row["ensemble_ratio"]
     assert 0 <= row["stretch_p99_prediction"] < 10 and row["hem_radius_difference_mm"] >= 0
     assert "walk: " in out.stderr and "x (ours" in out.stderr
+    command = "python benchmarks/joint2coarse_ensemble.py PROJECT --motion walk --frames 36"
+    assert result["command"] == command + " --realisations 2"
     table = "\n".join(_bench_markdown("joint2coarse-ensemble", result))
+    assert f"Made by `{command} --realisations 2`." in table
     assert "| motion | frames | simulations | ours_mm |" in table and "| walk | 36 | 3 |" in table
     bad = _run(smoke_project, "--motion", "walk", "--realisations", 1)
     assert bad.returncode == 2 and "needs at least 2" in bad.stderr
