@@ -42,7 +42,6 @@ import os
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -52,6 +51,7 @@ from torch.nn import functional as F
 
 from core.errors import InputError
 from training.configs import PlainConfig
+from training.weights import load_state, read_state_dict
 
 UNAVAILABLE = "unavailable: no Inception weights file given"
 #: Regularisation of singular covariances (pytorch-fid's default).
@@ -285,37 +285,15 @@ def load_inception(
     ``AuxLogits.*`` entries are ignored, missing ``num_batches_tracked`` entries tolerated; any
     other missing, unexpected or wrongly shaped entry raises :class:`InputError` naming the file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("Inception weights file not found", path)
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise InputError(f"cannot read Inception weights: {exc}", path) from None
-    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise InputError("Inception weights file must hold a state dict of tensors", path)
+    state, path = read_state_dict(path, "Inception")
     fc = state.get("fc.weight")
     net = InceptionV3(width_scale, num_classes=1000 if fc is None else int(fc.shape[0]))
-    own = net.state_dict()
     state = {k: v for k, v in state.items() if not k.startswith("AuxLogits.")}
-    missing = [k for k in own if k not in state and not k.endswith("num_batches_tracked")]
-    unexpected = [k for k in state if k not in own]
-    if missing or unexpected:
-        raise InputError(
-            "not a torchvision InceptionV3 state dict: "
-            f"missing {missing[:3]} (of {len(missing)}), unexpected {unexpected[:3]} "
-            f"(of {len(unexpected)})",
-            path,
-        )
-    for k, v in state.items():
-        if tuple(v.shape) != tuple(own[k].shape):
-            raise InputError(
-                f"{k} has shape {tuple(v.shape)}, expected {tuple(own[k].shape)} "
-                f"(width_scale={width_scale})",
-                path,
-            )
-    own.update({k: v.to(own[k].dtype) for k, v in state.items()})
-    net.load_state_dict(own)
+    load_state(
+        net, state, path, "a torchvision InceptionV3",
+        optional=lambda k: k.endswith("num_batches_tracked"),
+        note=f" (width_scale={width_scale})",
+    )  # fmt: skip
     return net.eval().to(device)
 
 

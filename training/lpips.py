@@ -35,13 +35,13 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
 from core.errors import InputError
+from training.weights import load_state, read_state_dict
 
 UNAVAILABLE = "unavailable: no LPIPS weights file given"
 #: AlexNet's five conv layers' channels, and their indices in torchvision's ``features``.
@@ -121,37 +121,13 @@ def load_lpips(path: str | os.PathLike, width_scale: float = 1.0) -> LPIPS:
 
     ``lins.K.*`` duplicates are ignored; any other missing, unexpected or wrongly shaped entry
     raises :class:`InputError` naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("LPIPS weights file not found", path)
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        raise InputError(f"cannot read LPIPS weights: {exc}", path) from None
-    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise InputError("LPIPS weights file must hold a state dict of tensors", path)
-    net = LPIPS(width_scale)
-    own = net.state_dict()
+    state, path = read_state_dict(path, "LPIPS")
     state = {k: v for k, v in state.items() if not k.startswith("lins.")}
-    missing = [k for k in own if k not in state and not k.startswith("scaling_layer.")]
-    unexpected = [k for k in state if k not in own]
-    if missing or unexpected:
-        raise InputError(
-            "not an lpips.LPIPS(net='alex') state dict: "
-            f"missing {missing[:3]} (of {len(missing)}), unexpected {unexpected[:3]} "
-            f"(of {len(unexpected)})",
-            path,
-        )
-    for k, v in state.items():
-        if tuple(v.shape) != tuple(own[k].shape):
-            raise InputError(
-                f"{k} has shape {tuple(v.shape)}, expected {tuple(own[k].shape)} "
-                f"(width_scale={width_scale})",
-                path,
-            )
-    own.update({k: v.to(own[k].dtype) for k, v in state.items()})
-    net.load_state_dict(own)
-    return net.eval()
+    return load_state(
+        LPIPS(width_scale), state, path, "an lpips.LPIPS(net='alex')",
+        optional=lambda k: k.startswith("scaling_layer."),
+        note=f" (width_scale={width_scale})",
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
