@@ -137,3 +137,31 @@ def test_hem_statistics_ignore_which_way_a_fold_goes():
     lifted = run.copy()
     lifted[:, hem, 1] += 0.02
     assert hem_stats_distance(lifted, run, hem, waist)[1] == pytest.approx(20.0)
+
+
+def test_layers_keep_a_proxy_off_the_body_by_their_depth(tmp_path, capsys):
+    """--layers: the garment is a proxy over a target whose inner layer lies 3 cm beneath it:
+    every run is simulated with that depth (as dng simulate --layers), and the JSON says so."""
+    from app.cli import main
+    from core.mesh import Mesh, save_mesh
+    from tests.sim_helpers import frustum_skirt
+
+    proxy = frustum_skirt(16, 6)
+    v = proxy.vertices.astype(np.float64)
+    axis = v.mean(0)
+    inner = v.copy()
+    radial = inner[:, [0, 2]] - axis[[0, 2]]
+    inner[:, [0, 2]] -= 0.03 * radial / np.linalg.norm(radial, axis=1, keepdims=True)
+    faces = np.concatenate([proxy.faces, proxy.faces + proxy.num_vertices])
+    target = Mesh(np.concatenate([v, inner]).astype(np.float32), faces)
+    save_mesh(tmp_path / "proxy.obj", proxy)
+    save_mesh(tmp_path / "target.obj", target)
+    args = ["bench", "sim", "--garment", str(tmp_path / "proxy.obj"), "--clips", "walk",
+            "--qualities", "", "--settings", "1,2", "--frames", "3", "--transition", "0.1",
+            "--settle", "0.0", "--out", str(tmp_path / "b"), "--json"]  # fmt: skip
+    assert main([*args, "--layers", str(tmp_path / "target.obj")]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["layers"] == str(tmp_path / "target.obj")
+    assert result["layers_depth_max_mm"] == pytest.approx(30.0, abs=3.0)
+    assert main([*args, "--layers", str(tmp_path / "missing.obj")]) == 2
+    assert "missing.obj" in capsys.readouterr().err

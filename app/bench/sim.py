@@ -39,6 +39,7 @@ from core.mesh import load_mesh
 from core.motion.procedural import PROCEDURAL_KINDS, make_motion
 from core.sim.config import QUALITY, SimConfig
 from core.sim.sanity import FLOOR_PERTURBATION_M, hem_indices, hem_radius, perturbed
+from core.sim.thickness import layer_thickness
 from pipeline.config import CMU_CLIP, MotionSpec, PipelineConfig
 from pipeline.stages.motions import motion_from_spec
 from templates.garments import make_garment
@@ -87,6 +88,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also run each setting on the garment moved by 10 um at random: how far the "
         "cloth's own sensitivity alone moves it (the distance no finer setting can remove)",
     )
+    parser.add_argument(
+        "--layers", metavar="TARGET",
+        help="the garment is a proxy: keep it off the body by the depth of TARGET's layers "
+        "beneath it, as dng demo simulates a project's proxy (and dng simulate --layers)",
+    )  # fmt: skip
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="another simulation setting of every run (core.sim.config.SimConfig), e.g. "
@@ -204,6 +210,10 @@ def run(args: argparse.Namespace) -> int:
     shape = BodyShape()
     garment = bench_garment(args.garment, args.resolution, shape)
     hem = hem_indices(garment.vertices, garment.faces)
+    thickness = None
+    if args.layers:
+        target = load_mesh(args.layers)[0]
+        thickness = layer_thickness(garment.vertices, garment.faces, target.vertices, args.layers)
     rows, skipped = [], []
     for clip in clips:
         motion = bench_motion(clip, args.frames, args.seed, shape)
@@ -222,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
                 )
                 mesh = perturbed(garment, FLOOR_PERTURBATION_M, args.seed) if moved else garment
                 with _quiet():
-                    cache, report = simulate(mesh, motion, shape, cfg)
+                    cache, report = simulate(mesh, motion, shape, cfg, thickness=thickness)
                 runs[(s, i, lin, tol, moved)] = (cache.positions, report, cache.params)
                 print(
                     f"{clip:10s} {s:2d}x{i:<2d} linear {lin:3d} {report.ms_per_frame:8.1f} ms/frame"
@@ -281,6 +291,10 @@ def run(args: argparse.Namespace) -> int:
         "frames": args.frames,
         "seed": args.seed,
         "fabric": args.fabric,
+        "layers": args.layers,
+        "layers_depth_max_mm": None
+        if thickness is None
+        else round(1e3 * float(thickness.max()), 2),
         "lead_in_s": [args.transition, args.settle],
         "sim": {k: v for k, v in base.as_dict().items() if k not in _MEASURED_FIELDS},
         "skipped_clips": skipped,
