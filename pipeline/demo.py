@@ -311,15 +311,15 @@ _CHILD_STAGES: dict[str, Callable] = {
 }
 
 
-def limit_blas_threads(threads: int) -> None:
-    """numpy's and scipy's BLAS on ``threads`` threads in this process, as torch is on
-    ``torch_threads``: the demo gives each of its processes a core, and BLAS's own threads (one
-    per core by default) would spin on the other process's. The frill tiers' simulation, two
-    at a time, ran 1.3x faster on one BLAS thread each (docs/decisions.md, "BLAS on
-    ``torch_threads``")."""
+def blas_threads(threads: int) -> threadpool_limits:
+    """numpy's and scipy's BLAS on ``threads`` threads in this process until the returned
+    context exits, as torch is on ``torch_threads``: the demo gives each of its processes a
+    core, and BLAS's own threads (one per core by default) would spin on the other process's.
+    The frill tiers' simulation, two at a time, ran 1.3x faster on one BLAS thread each
+    (docs/decisions.md, "BLAS on ``torch_threads``")."""
     import scipy.linalg  # noqa: F401  (scipy loads a BLAS of its own: limit it too)
 
-    threadpool_limits(threads, user_api="blas")
+    return threadpool_limits(threads, user_api="blas")
 
 
 def _stage_worker(
@@ -331,8 +331,8 @@ def _stage_worker(
     lines: list[str] = []
     start = time.perf_counter()
     project, config = Project(root), PipelineConfig.from_params(params)
-    limit_blas_threads(config.torch_threads)
-    result = _CHILD_STAGES[stage](project, config, *args, log=lines.append)
+    with blas_threads(config.torch_threads):
+        result = _CHILD_STAGES[stage](project, config, *args, log=lines.append)
     return time.perf_counter() - start, lines, result
 
 
@@ -498,9 +498,14 @@ def run_demo(
     that calls this must start from an ``if __name__ == "__main__":`` guard (Python's rule for
     the spawn start method; ``dng demo`` has one).
     """
+    with blas_threads(config.torch_threads):  # the caller's own limits come back after
+        return _run_demo(config, Path(out), preset_name, force)
+
+
+def _run_demo(config: PipelineConfig, out: Path, preset_name: str, force: bool) -> dict:
+    """:func:`run_demo`'s work."""
     project = Project(out)
     project.root.mkdir(parents=True, exist_ok=True)
-    limit_blas_threads(config.torch_threads)
     made_by = provenance()
     if force:
         for record in project.root.rglob(RECORD_NAME):
