@@ -110,13 +110,9 @@ class Hinges:
         which bending toward the rest shape's bends, turned with the cloth, pulls each vertex
         (:class:`ImplicitCloth`'s ``rest_bending``)."""
         b = self.rest[:, None] * _hinge_normals(x, self.stencil)  # (H, 3) rest bends, turned
-        out = np.zeros_like(x)
-        np.add.at(
-            out,
-            self.stencil.ravel(),
-            (self.weight[:, None, None] * self.k[:, :, None] * b[:, None, :]).reshape(-1, 3),
-        )
-        return out
+        pull = (self.weight[:, None, None] * self.k[:, :, None] * b[:, None, :]).reshape(-1, 3)
+        at = self.stencil.ravel()
+        return np.stack([np.bincount(at, pull[:, c], len(x)) for c in range(3)], axis=1)
 
 
 def _hinge_normals(x: np.ndarray, stencil: np.ndarray) -> np.ndarray:
@@ -316,10 +312,10 @@ class ImplicitCloth:
         self._pattern(v)
 
     # -- the matrix's sparsity, fixed: every value lands by one bincount -----------------------
-    # Bending's Hessian (``kb Q``, constant) enters the matrix by its diagonal only, its gradient
-    # in full: it is small against the inertia's ``M / dt^2``, and its off-diagonal terms couple
-    # two rings of neighbours, which multiplies a factorisation's fill-in; its diagonal keeps
-    # the line search from backtracking on steps where bending matters.
+    # Bending's Hessian (``kb Q``, constant) enters the matrix in full (``full_bending``) or by
+    # its diagonal alone, its gradient in full either way. Its off-diagonal terms couple two
+    # rings of neighbours, which multiplies a factorisation's fill-in; without them a stiff
+    # bending converges linearly, and a step can meet the tolerance far from its solution.
     def _pattern(self, v: int) -> None:
         f = self.rest.faces
         vi = np.repeat(f[:, :, None], 3, 2)  # (T, 3, 3) row vertex
@@ -716,7 +712,8 @@ class ImplicitScene:
         self.config = config
         self.pins = pins
         radius = np.full(garment.num_vertices, config.collision_margin)
-        stiffer = config.layer_bending if thickness is not None else 1.0
+        layered = thickness is not None
+        stiffer = config.layer_bending if layered else 1.0
         squeeze = config.layer_compression if thickness is not None else config.compression
         rest = cloth_rest(garment.vertices, garment.faces, fab.density, fab.bend_ke * stiffer)
         mu = np.array([0.0 if is_arm(name) else friction for name in capsules.names])
@@ -724,7 +721,7 @@ class ImplicitScene:
             rest, fab.stretch_ke, config.contact_ke, radius, mu, capsules.radii,
             pins.indices, config.implicit_tol, config.iterations, config.implicit_norm,
             thickness, config.layer_ke, compression=squeeze,
-            rest_bending=config.rest_bending,
+            rest_bending=config.rest_bending, full_bending=layered and config.layer_full_bending,
             release=config.layer_release if thickness is not None else np.inf,
         )  # fmt: skip
         self.x = garment.vertices.astype(np.float64)
