@@ -111,6 +111,8 @@ def _latent(cfg) -> tuple[int, int, int]:
 
 def deviations(config: PipelineConfig) -> list[Deviation]:
     """Every way ``config``'s run differs from the paper, in pipeline order."""
+    from training.joint2coarse.config import PREDICTION_STRETCH, PREDICTION_SWEEPS
+
     r = renderer_config(config)
     j = joint2coarse_config(config)
     rows: list[Deviation] = []
@@ -261,8 +263,13 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
     add(
         "Joint2Coarse",
         "prediction used as it comes",
-        "vertices inside the body pushed out of the simulation's capsules",
-        "the report gives penetration before and after",
+        f"its edges shortened to at most {PREDICTION_STRETCH:.0%} stretch against the proxy's "
+        f"rest shape (a strain limit, {PREDICTION_SWEEPS} sweeps) wherever it is used; vertices "
+        "inside the body pushed out of the simulation's capsules where asked (`dng predict "
+        "proxy --push-out`)",
+        "the network stretches the proxy's edges many times more than the cloth does "
+        "(docs/decisions.md, \"Joint2Coarse's prediction strain-limited\"); the report gives "
+        "stretch and penetration against the simulation's",
     )
     sizes, channels = PAPER_TEXTURE
     if (tuple(r.texture_sizes), r.texture_channels) != (sizes, channels):

@@ -199,6 +199,7 @@ def evaluate_on_motion(
         joint2coarse_inputs,
         load_model,
         predict_proxy,
+        prediction_stretch_limit,
         vertex_errors,
     )
 
@@ -222,20 +223,24 @@ def evaluate_on_motion(
         project, config, motion, log, cache_root
     )
     joints, root_rot = joint2coarse_inputs(motion)
+    proxy = project_proxy(project)[0]
+    stretch = prediction_stretch_limit(proxy.vertices, proxy.faces)
     start = time.perf_counter()
-    pred = predict_proxy(net, joints, root_rot, source=source)
+    pred = predict_proxy(net, joints, root_rot, source=source, stretch=stretch)
     batch_ms = 1e3 * (time.perf_counter() - start) / len(pred)
-    stream = Joint2CoarseStream(net)
+    stream = Joint2CoarseStream(net, stretch=stretch)
     frame_ms = []
     for t in range(len(joints)):
         start = time.perf_counter()
         stream.push(joints[t], root_rot[t])
         frame_ms.append(1e3 * (time.perf_counter() - start))
-    rest = project_proxy(project)[0].vertices
+    rest = proxy.vertices
     top = float(rest[:, 1].max())
     ends, radii = simulation_colliders(config.body, motion, top, sim_config(config).arm_colliders)
     start = time.perf_counter()
-    pushed = predict_proxy(net, joints, root_rot, capsules=ends, radii=radii, source=source)
+    pushed = predict_proxy(
+        net, joints, root_rot, capsules=ends, radii=radii, source=source, stretch=stretch
+    )
     push_ms = 1e3 * (time.perf_counter() - start) / len(pred) - batch_ms
     compare = {}  # the models trained beside the project's (joint2coarse_compare)
     predictions = {net.config.model: pred}

@@ -140,6 +140,8 @@ class Playback:
     proxy_faces : (Fp, 3) int64 over the UV-split proxy vertices
     proxy_uvs : (Vp, 2) float32
     seam_map : (Vp,) int64, UV vertex -> seam-free vertex (Joint2Coarse's vertices)
+    stretch : the strain limit Joint2Coarse's predictions keep
+        (:func:`training.joint2coarse.prediction_stretch_limit` of the seam-free proxy)
     motion : the current Motion (None before :meth:`set_motion`)
     last_timings : dict of str -> float, milliseconds per part of the last :meth:`render`
     """
@@ -153,7 +155,7 @@ class Playback:
         joint2coarse_path: str | os.PathLike | None = None,
         shading=None,
     ):
-        from training.joint2coarse import load_model
+        from training.joint2coarse import load_model, prediction_stretch_limit
 
         root = Path(project_root)
         if not root.is_dir():
@@ -175,6 +177,9 @@ class Playback:
         self.proxy_faces = proxy.faces
         self.proxy_uvs = proxy.uvs
         self.seam_map = np.load(seams_file)["seam_map"].astype(np.int64)
+        rest = np.zeros((self.seam_map.max() + 1, 3), np.float64)
+        rest[self.seam_map] = proxy.vertices
+        self.stretch = prediction_stretch_limit(rest, self.seam_map[proxy.faces])
         j2c = (
             Path(joint2coarse_path) if joint2coarse_path else self.project.path(*JOINT2COARSE_MODEL)
         )
@@ -217,7 +222,9 @@ class Playback:
         body_frames = pose_body(self.body, motion)  # checks the motion is on the mannequin
         joints, root_rot = joint2coarse_inputs(motion)
         start = time.perf_counter()
-        positions = predict_proxy(self.joint2coarse, joints, root_rot, source=motion.name)
+        positions = predict_proxy(
+            self.joint2coarse, joints, root_rot, source=motion.name, stretch=self.stretch
+        )
         self._j2c_ms = 1e3 * (time.perf_counter() - start) / len(positions)
         self.motion = motion
         self.positions = positions

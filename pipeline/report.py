@@ -191,12 +191,19 @@ def _joint2coarse_markdown(report: dict) -> list[str]:
     ]
     lines += joint2coarse_splits_markdown(j)
     if j.get("motions"):
+        held = j.get("stretch_limit")
+        prediction = (
+            f"the prediction (its edges shortened to at most {held['limit']:.0%} stretch, "
+            f"{held['sweeps']} sweeps)"
+            if held
+            else "the prediction as it comes"
+        )
         lines += [
             "",
             "Physics beside the distance, on the unseen motions: how deep and how often the "
             "proxy is inside the body's capsules, and its edges' stretch against the proxy's "
-            "rest shape (p99 and max over every edge and frame), for the prediction as it "
-            "comes, pushed out of the body, and the simulation; and the hem's radius (its mean "
+            f"rest shape (p99 and max over every edge and frame), for {prediction}, that "
+            "pushed out of the body, and the simulation; and the hem's radius (its mean "
             "distance from the axis through the waist, per frame), the prediction's against the "
             "simulation's.",
             "",

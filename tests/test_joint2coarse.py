@@ -598,6 +598,34 @@ def test_prediction_with_capsules_and_stream(trained):
     assert dist.min() >= 0.25 + 0.002 - 1e-5
 
 
+def test_prediction_strain_limited_and_stream(trained, clips):
+    # The network's proxy with its edges shortened toward 2 % stretch against the rest ring
+    # skirt, the same in batch and in the stream.
+    from core.sim.embed import limit_stretch, strain_stats
+    from training.joint2coarse import prediction_stretch_limit
+    from training.joint2coarse.synthetic import skirt_faces
+
+    joints, root_rot, proxy = synthetic_clip(20, seed=9)
+    rest, faces = proxy[0], skirt_faces()
+    raw = predict_proxy(trained.net, joints, root_rot)
+    limit = prediction_stretch_limit(rest, faces)
+    held = limit_stretch(raw, limit)
+    before, after = strain_stats(raw, rest, faces), strain_stats(held, rest, faces)
+    assert before.stretch_max > 0.2
+    # the small network's proxy is stretched everywhere (p99 0.34): 30 sweeps of a Jacobi
+    # projection bring it most of the way to the limit
+    assert after.stretch_max < before.stretch_max / 5 and after.stretch_p99 < 0.05
+    pred = predict_proxy(trained.net, joints, root_rot, stretch=limit)
+    np.testing.assert_allclose(pred, held, atol=1e-6)
+    stream = Joint2CoarseStream(trained.net, stretch=limit)
+    frames = np.stack([stream.push(j, r) for j, r in zip(joints, root_rot)])
+    # the stream's 1e-5 of float32 rounding can put an edge on the other side of the limit
+    assert_close(frames, pred, atol=1e-3, what="strain-limited stream")
+    with pytest.raises(InputError, match="120-vertex proxy"):
+        predict_proxy(trained.net, joints, root_rot, stretch=prediction_stretch_limit(
+            np.zeros((200, 3)), np.array([[0, 1, 199]])))  # fmt: skip
+
+
 # -- metrics and bad input ----------------------------------------------------------------------
 
 

@@ -159,3 +159,27 @@ def test_shortening_moves_only_the_ends_the_contact_step_may_move():
     # 2-3: both ends movable, each moves half
     np.testing.assert_allclose(x[:, 0], [0.0, 1.0, 4.25, 4.75])
     assert sorted(hit.tolist()) == [1, 2, 3]
+
+
+def test_limit_stretch_shortens_each_frame_to_its_limit_and_leaves_the_rest():
+    from core.sim.embed import limit_stretch, stretch_limit
+
+    rest = np.array([[0.0, 0, 0], [1.0, 0, 0], [0.0, 1.0, 0]])
+    faces = np.array([[0, 1, 2]])
+    s = stretch_limit(rest, faces, 0.1, 1)
+    one = rest.copy()
+    one[1, 0] = 1.5  # edge 0-1 at 1.5 against 1.1; edge 1-2 stretched too
+    two = rest * 1.05  # within the limit: untouched
+    out = limit_stretch(np.stack([one, two]), s)
+    first = limit_stretch(one, s)  # one frame alone: the same
+    np.testing.assert_array_equal(out[0], first)
+    np.testing.assert_array_equal(out[1], two)
+    # one sweep: vertex 0 moves half of edge 0-1's excess; vertex 1 the mean of its two edges'
+    np.testing.assert_allclose(first[0], [0.2, 0.0, 0.0])
+    assert np.linalg.norm(first[1] - first[0]) < 1.5
+    held = limit_stretch(one, stretch_limit(rest, faces, 0.1, 200))
+    length = np.linalg.norm(held[faces[0, [1, 2, 2]]] - held[faces[0, [0, 1, 0]]], axis=1)
+    rest_length = np.array([1.0, np.sqrt(2.0), 1.0])
+    assert (length <= 1.1 * rest_length + 1e-6).all()
+    with pytest.raises(InputError):
+        stretch_limit(rest, faces, -0.1, 5)

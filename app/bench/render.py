@@ -76,6 +76,7 @@ class BenchSetup:
     background : (t, camera) -> (H, W, 3) uint8
     model : trained RenderNet of a project (None: presets with random weights only)
     measures_background : whether ``background`` is the real (ray-traced) one
+    stretch : the strain limit a project's Joint2Coarse keeps (None: the synthetic setup's)
     """
 
     name: str
@@ -90,6 +91,7 @@ class BenchSetup:
     background: object
     model: object = None
     measures_background: bool = False
+    stretch: object = None
 
 
 def synthetic_setup(frames: int, resolution: int = 64) -> BenchSetup:
@@ -151,6 +153,7 @@ def project_setup(root, frames: int) -> BenchSetup:
         background=pb.background,
         model=model,
         measures_background=True,
+        stretch=pb.stretch,
     )
 
 
@@ -158,7 +161,7 @@ def time_joint2coarse(setup: BenchSetup) -> float:
     """Median ms per frame of streaming Joint2Coarse over the clip (after a warm-up)."""
     from training.joint2coarse import Joint2CoarseStream
 
-    stream = Joint2CoarseStream(setup.joint2coarse)
+    stream = Joint2CoarseStream(setup.joint2coarse, stretch=setup.stretch)
     for f in range(min(WARMUP, len(setup.joints))):
         stream.push(setup.joints[f], setup.root_rotations[f])
     stream.reset()

@@ -57,7 +57,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_proxy(args: argparse.Namespace) -> int:
 
     from core.motion.load import load_motion, resample
-    from training.joint2coarse import joint2coarse_inputs, load_model, predict_proxy
+    from training.joint2coarse import (
+        joint2coarse_inputs,
+        load_model,
+        predict_proxy,
+        prediction_stretch_limit,
+    )
 
     usd = Path(args.out).suffix.lower() in USD_SUFFIXES
     if args.body and not usd:
@@ -78,7 +83,10 @@ def run_proxy(args: argparse.Namespace) -> int:
         arms = sim_config(config).arm_colliders
         capsules, radii = simulation_colliders(config.body, motion, top, arms)
     start = time.perf_counter()
-    positions = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
+    stretch = prediction_stretch_limit(proxy.vertices, proxy.faces)
+    positions = predict_proxy(
+        net, joints, root_rot, capsules=capsules, radii=radii, stretch=stretch
+    )
     ms = 1e3 * (time.perf_counter() - start) / len(positions)
     faces = proxy.faces
     params = {"joint2coarse": str(model), "motion": args.motion, "push_out": args.push_out}

@@ -50,9 +50,11 @@ def stage_joint2coarse(
         Joint2CoarseClip,
         joint2coarse_inputs,
         predict_proxy,
+        prediction_stretch_limit,
         train_joint2coarse,
     )
     from training.joint2coarse.body_model import body_rig
+    from training.joint2coarse.config import PREDICTION_STRETCH, PREDICTION_SWEEPS
 
     torch.set_num_threads(config.torch_threads)
     cfg = joint2coarse_config(config)
@@ -66,15 +68,14 @@ def stage_joint2coarse(
     motions = [project.path("motions", f"{n}.bvh") for n in names]
     proxy_file = project.path("proxy", "positions.obj")
     params = {"joint2coarse": cfg.to_dict(), "train": train, "tests": tests}
+    params["stretch_limit"] = [PREDICTION_STRETCH, PREDICTION_SWEEPS]  # what its predictions keep
     if config.joint2coarse_compare:
         params["compare"] = list(config.joint2coarse_compare)
     if extra:
         params["extra"] = extra
     if vals:
         params["validation"] = vals
-    inputs = [*caches.values(), *motions]
-    if cfg.model == "ours" or cfg.mirror:
-        inputs.append(proxy_file)
+    inputs = [*caches.values(), *motions, proxy_file]  # the proxy: its rig, its strain limit
 
     def work(out: Path) -> list[str]:
         clips = []
@@ -92,6 +93,7 @@ def stage_joint2coarse(
             "config": run_cfg.to_dict(),
             "mirror": symmetry,
             "model": cfg.model,
+            "stretch_limit": {"limit": PREDICTION_STRETCH, "sweeps": PREDICTION_SWEEPS},
             "splits": splits,
             "train_motion": train,
             "extra_train_motions": extra,
@@ -104,14 +106,17 @@ def stage_joint2coarse(
             "compare": {},
         }
         outputs = [result.model_path.name, result.log_path.name]
+        proxy = load_mesh(proxy_file)[0]
+        stretch = prediction_stretch_limit(proxy.vertices, proxy.faces)
         # The training motion's prediction: the proxy the renderer sees at test time.
-        write_npz(out / f"pred-{train}.npz", positions=predict_proxy(result.net, joints, root_rot))
+        pred = predict_proxy(result.net, joints, root_rot, stretch=stretch)
+        write_npz(out / f"pred-{train}.npz", positions=pred)
         outputs.append(f"pred-{train}.npz")
         for split, key in ((vals, "validation_motions"), (tests, "motions")):
             for name in split:
                 report[key][name] = _evaluate_joint2coarse(
                     project, config, result.net, name, load_cache(caches[name]), out,
-                    picture=key == "motions",
+                    picture=key == "motions", stretch=stretch,
                 )  # fmt: skip
                 outputs.append(f"pred-{name}.npz")
                 if key == "motions":
@@ -196,14 +201,15 @@ def _compare_errors(project: Project, net, caches: dict, vals: list, tests: list
 
 
 def _evaluate_joint2coarse(
-    project, config, net, name, reference, out: Path, picture: bool = True
+    project, config, net, name, reference, out: Path, picture: bool = True, stretch=None
 ) -> dict:
     """Predict a test motion; compare with its simulation, with and without the push-out
     against the body (the capsules the simulation collides with); time the inference; write a
     side-by-side picture. Penetration, stretch (edge strain against the proxy's rest shape, p99
     and max over every edge and frame) and the hem's radius per frame (its mean distance from the
     axis through the waist's centroid, mm) are reported for the prediction and the simulation
-    alike: a prediction close in millimetres but stretched or inside the body is not close."""
+    alike: a prediction close in millimetres but stretched or inside the body is not close.
+    ``stretch``: the strain limit of the project's predictions (:func:`prediction_stretch_limit`)."""
     from training.joint2coarse import (
         Joint2CoarseStream,
         joint2coarse_inputs,
@@ -215,9 +221,9 @@ def _evaluate_joint2coarse(
     motion = load_project_motion(project, name)
     joints, root_rot = joint2coarse_inputs(motion)
     start = time.perf_counter()
-    pred = predict_proxy(net, joints, root_rot)
+    pred = predict_proxy(net, joints, root_rot, stretch=stretch)
     ms = 1e3 * (time.perf_counter() - start) / len(pred)
-    stream = Joint2CoarseStream(net)  # one frame at a time, as the GUI plays a motion
+    stream = Joint2CoarseStream(net, stretch=stretch)  # one frame at a time, as the GUI plays
     frame_ms = []
     for t in range(len(joints)):
         start = time.perf_counter()
@@ -229,7 +235,9 @@ def _evaluate_joint2coarse(
     capsules, radii = simulation_colliders(
         config.body, motion, top, sim_config(config).arm_colliders
     )
-    pushed = predict_proxy(net, joints, root_rot, capsules=capsules, radii=radii)
+    pushed = predict_proxy(
+        net, joints, root_rot, capsules=capsules, radii=radii, stretch=stretch
+    )
     write_npz(out / f"pred-{name}.npz", positions=pred)
 
     def measured(positions: np.ndarray) -> dict:

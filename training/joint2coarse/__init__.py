@@ -9,7 +9,8 @@ Array-level API (the CLI and project folders wrap it):
 - training: :class:`Joint2CoarseClip`, :func:`train_joint2coarse` (resumable);
 - prediction: :func:`load_model`, :func:`predict_proxy`, :class:`Joint2CoarseStream` (on a
   :class:`FrozenForward`: the network as plain matrix products, for one frame at a time);
-- extras: :func:`push_out_of_capsules`, :func:`vertex_errors`, :func:`reconstruct_proxy` (the
+- extras: :func:`prediction_stretch_limit` (the strain limit a prediction takes from its
+  proxy), :func:`push_out_of_capsules`, :func:`vertex_errors`, :func:`reconstruct_proxy` (the
   shape autoencoder on known shapes: what the decoder reaches).
 """
 
@@ -34,6 +35,7 @@ from training.joint2coarse.predict import (
     FrozenForward,
     Joint2CoarseStream,
     predict_proxy,
+    prediction_stretch_limit,
     reconstruct_proxy,
 )
 from training.joint2coarse.train import (
@@ -63,6 +65,7 @@ __all__ = [
     "load_model",
     "motion_descriptors",
     "predict_proxy",
+    "prediction_stretch_limit",
     "prepare_data",
     "push_out_of_capsules",
     "reconstruct_proxy",

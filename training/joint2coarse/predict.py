@@ -8,7 +8,9 @@ from torch import nn
 
 from core.body.colliders import DEFAULT_MARGIN_M, push_out_of_capsules
 from core.errors import InputError
+from core.sim.embed import StretchLimit, limit_stretch, stretch_limit
 from training.joint2coarse.body_model import BodyResidualModel
+from training.joint2coarse.config import PREDICTION_STRETCH, PREDICTION_SWEEPS
 from training.joint2coarse.descriptor import (
     NUM_JOINTS,
     check_joint_inputs,
@@ -20,6 +22,13 @@ from training.joint2coarse.descriptor import (
     to_output_frame,
 )
 from training.joint2coarse.model import Joint2CoarseNet
+
+
+def prediction_stretch_limit(rest: np.ndarray, faces: np.ndarray) -> StretchLimit:
+    """The strain limit a project's proxy (``rest`` (V, 3) ``proxy/positions.obj``, ``faces``
+    (F, 3)) puts on Joint2Coarse's predictions: :data:`PREDICTION_STRETCH`,
+    :data:`PREDICTION_SWEEPS`."""
+    return stretch_limit(rest, faces, PREDICTION_STRETCH, PREDICTION_SWEEPS)
 
 
 def _run_net(net: Joint2CoarseNet, desc: np.ndarray) -> np.ndarray:
@@ -47,6 +56,7 @@ def predict_proxy(
     margin: float = DEFAULT_MARGIN_M,
     batch_size: int = 1024,
     source: str = "",
+    stretch: StretchLimit | None = None,
 ) -> np.ndarray:
     """Proxy vertices for a whole clip.
 
@@ -68,12 +78,17 @@ def predict_proxy(
         Frames per network call (memory bound only; results do not depend on it).
     source : str
         Clip name for error messages.
+    stretch : StretchLimit, optional
+        Shorten the edges the network stretched past it (:func:`core.sim.embed.limit_stretch`,
+        :func:`prediction_stretch_limit`), before the push out of the capsules; off when None.
 
     Returns
     -------
     (T, Vc, 3) float32 world positions.
     """
     check_joint_inputs(joints, root_rotations, source)
+    if stretch is not None and len(stretch.edges) and stretch.edges.max() >= net.n_vertices:
+        raise InputError(f"the stretch limit's mesh is not the model's {net.n_vertices}-vertex proxy")
     if (capsules is None) != (radii is None):
         raise InputError("capsules and radii go together", source or None)
     cfg = net.config
@@ -84,6 +99,8 @@ def predict_proxy(
         sl = slice(start, start + batch_size)
         local = _run_net(net, desc[sl])
         out[sl] = from_output_frame(local, origin[sl], heading[sl], tilt[sl], follow)
+    if stretch is not None:
+        out = limit_stretch(out, stretch).astype(np.float32)
     if capsules is not None:
         out = push_out_of_capsules(out, capsules, radii, margin)
     return out
@@ -241,6 +258,8 @@ class Joint2CoarseStream:
         stays float32): half the memory traffic, so lower latency on CPUs where a frame is
         bound by reading the weights and that have bfloat16 arithmetic; results then differ
         from :func:`predict_proxy` by bfloat16 rounding.
+    stretch : StretchLimit, optional
+        As :func:`predict_proxy`'s: each frame's edges shortened before the push out.
     """
 
     def __init__(
@@ -249,8 +268,10 @@ class Joint2CoarseStream:
         radii: np.ndarray | None = None,
         margin: float = DEFAULT_MARGIN_M,
         bfloat16: bool = False,
+        stretch: StretchLimit | None = None,
     ):
         self.net = net
+        self.stretch = stretch
         if isinstance(net, BodyResidualModel):  # already plain matrix products
             self.forward = _BodyForward(net)
         else:
@@ -310,6 +331,8 @@ class Joint2CoarseStream:
         world = from_output_frame(local, origin, heading, tilt, self._follow)
         world = world.astype(np.float32)[0]
         self.frame_index = i + 1
+        if self.stretch is not None:
+            world = limit_stretch(world, self.stretch).astype(np.float32)
         if capsules is not None:
             world = push_out_of_capsules(world, capsules, self.radii, self.margin)
         return world
