@@ -599,7 +599,7 @@ def test_prediction_with_capsules_and_stream(trained):
 
 
 def test_prediction_strain_limited_and_stream(trained, clips):
-    # The network's proxy with its edges shortened toward 2 % stretch against the rest ring
+    # The network's proxy with its edges shortened toward its strain limit against the rest ring
     # skirt, the same in batch and in the stream.
     from core.sim.embed import limit_stretch, strain_stats
     from training.joint2coarse import prediction_stretch_limit

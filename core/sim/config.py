@@ -168,7 +168,7 @@ class SimConfig:
     """A proxy kept off the body by its layers (``thickness``) puts bending's whole Hessian in
     each Newton step's matrix, not its diagonal alone (the implicit solver). At ``layer_bending``
     times the fabric's bending, a step with the diagonal met its tolerance long before its bends
-    settled: 26 to 38 mm mean from its 2x run on quick's clips, 6 to 9 with the whole Hessian,
+    settled: 26 to 31 mm mean from its 2x run on quick's clips, 6 to 9 with the whole Hessian,
     at about 1.4x the cost (docs/decisions.md, "What counts as converged")."""
     layer_release: float = 0.01
     """How deep (metres) past its margin's outer edge the body's push on a proxy kept off the
