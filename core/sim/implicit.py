@@ -33,12 +33,12 @@ step's start, the slip ``u_T`` against the capsule's own motion). Pinned vertice
 bones (kinematic, out of the solve). A single surface only: no cloth-cloth contact, no seams.
 
 Everything is numpy float64 on the CPU; a step's cost is a few sparse factorisations. On the
-quick project's 989-vertex proxy, at 8 steps a frame to 0.1 mm at every vertex, that is 480 to
-875 ms a frame; at 2 steps to 0.3 mm root mean square (the quick preset's ground truth) 96 to
-147 ms (about a quarter less since the contact candidates are pruned by the step start's
-gaps, the same steps to the bit), and its runs are as far from runs twice as fine as from
-themselves on a 10 um nudge: the converged cloth's folds go one way or another (docs/decisions.md, "What counts as converged"; ``dng
-bench sim --set solver=implicit --floor``).
+quick project's 989-vertex proxy kept off the body by its layers, at 2 steps a frame to 0.3 mm
+root mean square (the quick preset's ground truth) with bending's whole Hessian in the matrix
+(``full_bending``), 55 to 352 ms a frame, median 154, over quick run q69's 46 clips; its runs
+are 1.2x to 2.5x as far from runs twice as fine as from themselves on a 10 um nudge, the
+cloth's own sensitivity (docs/decisions.md, "What counts as converged"; ``dng bench sim --set
+solver=implicit --floor``).
 """
 
 from __future__ import annotations
