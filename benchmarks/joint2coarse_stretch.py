@@ -6,7 +6,7 @@ Usage: ``python benchmarks/joint2coarse_stretch.py PROJECT [--limits 0.01 0.02 0
 [--sweeps 10 30] [--split validation|test] [--json]``
 
 For each motion of the split, the project's Joint2Coarse predicts the proxy as it comes (no
-limit), then with every limit and sweep count (:func:`core.sim.embed.limit_stretch` against the
+limit), then with every limit and sweep count (:func:`core.strain.limit_stretch` against the
 proxy's rest shape). Each row is the mean over the motions of: the vertex error against the
 project's simulation (mean mm), the edges' stretch (p99 and max over every edge and frame, as
 the report measures it) and the limit's cost (ms a frame, on top of the prediction). The
@@ -26,7 +26,8 @@ from core.errors import InputError
 from core.mesh import load_mesh
 from core.project import Project
 from core.sim import load_cache
-from core.sim.embed import limit_stretch, strain_stats, stretch_limit
+from core.sim.embed import strain_stats
+from core.strain import limit_stretch, stretch_limit
 from pipeline.stages.motions import load_project_motion
 
 

@@ -88,6 +88,13 @@ def make_bundle(
             "faces": torch.from_numpy(np.asarray(pb.proxy_faces, np.int64).copy()),
             "uvs": torch.from_numpy(np.asarray(pb.proxy_uvs, np.float32).copy()),
             "seam_map": torch.from_numpy(pb.seam_map.copy()),
+            # the strain limit Joint2Coarse's predictions keep (Playback's ``stretch``)
+            "stretch": {
+                "edges": torch.from_numpy(np.asarray(pb.stretch.edges, np.int64).copy()),
+                "lengths": torch.from_numpy(np.asarray(pb.stretch.lengths, np.float64).copy()),
+                "limit": float(pb.stretch.limit),
+                "sweeps": int(pb.stretch.sweeps),
+            },
         },
         "body": {
             "vertices": torch.from_numpy(np.asarray(pb.body.vertices, np.float32).copy()),

@@ -601,7 +601,8 @@ def test_prediction_with_capsules_and_stream(trained):
 def test_prediction_strain_limited_and_stream(trained, clips):
     # The network's proxy with its edges shortened toward its strain limit against the rest ring
     # skirt, the same in batch and in the stream.
-    from core.sim.embed import limit_stretch, strain_stats
+    from core.sim.embed import strain_stats
+    from core.strain import limit_stretch
     from training.joint2coarse import prediction_stretch_limit
     from training.joint2coarse.synthetic import skirt_faces
 

@@ -148,7 +148,7 @@ def test_contact_keeps_an_inner_layer_out_of_the_body_without_tearing_it():
 
 
 def test_shortening_moves_only_the_ends_the_contact_step_may_move():
-    from core.sim.embed import _shorten
+    from core.strain import shorten_edges as _shorten
 
     x = np.array([[0.0, 0, 0], [2.0, 0, 0], [4.0, 0, 0], [5.0, 0, 0]])
     edges = np.array([[0, 1], [1, 2], [2, 3]])
@@ -162,7 +162,7 @@ def test_shortening_moves_only_the_ends_the_contact_step_may_move():
 
 
 def test_limit_stretch_shortens_each_frame_to_its_limit_and_leaves_the_rest():
-    from core.sim.embed import limit_stretch, stretch_limit
+    from core.strain import limit_stretch, stretch_limit
 
     rest = np.array([[0.0, 0, 0], [1.0, 0, 0], [0.0, 1.0, 0]])
     faces = np.array([[0, 1, 2]])

@@ -28,6 +28,10 @@ FAR_SHARE = 0.001
 #: Metres allowed between our Joint2Coarse in torch (float32 products in torch's order) and in
 #: numpy: measured 1.8e-7 m at most on the smoke project's three motions (CPU).
 OURS_ATOL = 1e-6
+#: Metres allowed between the two paths' proxies after the strain limit Joint2Coarse's
+#: predictions keep (core.strain.limit_stretch): an edge within rounding of its limit is
+#: shortened in one path and not the other, and 30 sweeps spread that (1.8e-5 measured).
+PROXY_ATOL = 5e-4
 
 ALL_CAMERAS = [
     *CAMERAS,
@@ -224,8 +228,8 @@ def test_torch_path_plays_ours(ours_bundle, ours_playback):
     assert player.joint2coarse.config.model == "ours"
     player.set_clip(pb.config.train_motion.name)
     out = player.proxy(range(12))
-    for t in range(12):
-        assert_close(out[t], pb.proxy_vertices(t), atol=1e-5, what=f"ours proxy, frame {t}")
+    for t in range(12):  # PROXY_ATOL: the strain limit's thresholds amplify float rounding
+        assert_close(out[t], pb.proxy_vertices(t), atol=PROXY_ATOL, what=f"ours proxy, frame {t}")
     diffs = []
     for t in range(3):
         cam = pb.default_camera(t, 96, 96, azimuth_deg=-20.0)
@@ -240,7 +244,7 @@ def test_torch_path_matches_playback(bundle_file, playback):
     player = TorchPlayer(bundle_file)
     player.set_clip(pb.config.train_motion.name)
     for t in range(3):
-        assert_close(player.proxy([t])[0], pb.proxy_vertices(t), atol=1e-5, what="proxy")
+        assert_close(player.proxy([t])[0], pb.proxy_vertices(t), atol=PROXY_ATOL, what="proxy")
         assert_close(player.body([t])[0], pb.body_vertices(t), atol=1e-5, what="body")
     diffs = []
     encodes = pb.renderer.encodes
@@ -498,3 +502,22 @@ def test_export_torch_cli_other_joint2coarse(smoke_project, ours_file, tmp_path,
     assert load_bundle(out)["joint2coarse"]["config"]["model"] == "ours"
     code, _, err = dng(*args[:3], "--out", tmp_path / "x.pt", *args[5:], tmp_path / "none.pt")
     assert code == 2 and "none.pt" in err and not (tmp_path / "x.pt").exists()
+
+
+def test_the_strain_limit_in_torch_is_numpys():
+    from core.strain import limit_stretch, stretch_limit
+    from training.joint2coarse.synthetic import skirt_faces, synthetic_clip
+    from training.torchpath.player import limit_stretch_torch
+
+    _, _, proxy = synthetic_clip(4, seed=3)
+    rest = proxy[0].astype(np.float64)
+    frames = rest * np.array([1.0, 1.1, 1.0]) + 0.004 * np.random.default_rng(0).standard_normal(
+        (4, *rest.shape)
+    )  # stretched along y, and noise
+    s = stretch_limit(rest, skirt_faces(), 0.01, 30)
+    ref = limit_stretch(frames, s)
+    out = limit_stretch_torch(
+        torch.from_numpy(frames), torch.from_numpy(s.edges), torch.from_numpy(s.lengths), 0.01, 30
+    )
+    assert np.abs(ref - frames).max() > 1e-3  # it did shorten
+    np.testing.assert_allclose(out.numpy(), ref, atol=1e-12)

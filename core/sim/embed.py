@@ -89,6 +89,7 @@ from core.errors import InputError
 from core.fileio import write_npz
 from core.mesh import unique_edges, vertex_normals
 from core.proxy.metrics import correspond
+from core.strain import shorten_edges
 
 #: Diffusion length (metres) of the target's binding along its own edges.
 SMOOTHING_M = 0.15
@@ -442,7 +443,7 @@ def keep_out_of_body(
     for _ in range(settings.rounds if len(edges) else 0):
         moved = np.zeros(len(x), bool)
         for _ in range(settings.sweeps):
-            hit = _shorten(x, edges, limit, movable)
+            hit = shorten_edges(x, edges, limit, movable)
             if not len(hit):
                 break
             moved[hit] = True
@@ -453,79 +454,3 @@ def keep_out_of_body(
     return x
 
 
-@dataclass(frozen=True)
-class StretchLimit:
-    """How far a cloth's edges may stretch (:func:`limit_stretch`).
-
-    Attributes
-    ----------
-    edges : (E, 2) int64 the mesh's edges
-    lengths : (E,) float64 their rest lengths (metres)
-    limit : stretch (``len / rest - 1``) an edge may keep
-    sweeps : most shortening sweeps (each moves an edge's excess one edge along the cloth)
-    """
-
-    edges: np.ndarray
-    lengths: np.ndarray
-    limit: float
-    sweeps: int
-
-
-def stretch_limit(rest: np.ndarray, faces: np.ndarray, limit: float, sweeps: int) -> StretchLimit:
-    """The :class:`StretchLimit` of a mesh: ``rest`` (V, 3) its rest positions, ``faces`` (F, 3)."""
-    if not (np.isfinite(limit) and limit >= 0) or int(sweeps) < 1:
-        raise InputError(f"need a stretch limit >= 0 and sweeps >= 1, got {limit}, {sweeps}")
-    edges = unique_edges(np.asarray(faces, np.int64))
-    r = np.asarray(rest, np.float64)
-    lengths = np.linalg.norm(r[edges[:, 1]] - r[edges[:, 0]], axis=1)
-    return StretchLimit(edges, lengths, float(limit), int(sweeps))
-
-
-def limit_stretch(positions: np.ndarray, s: StretchLimit) -> np.ndarray:
-    """``positions`` (T, V, 3) or (V, 3) with every edge longer than ``1 + s.limit`` times its rest
-    length shortened back, both ends alike (each vertex by the mean of its edges' corrections:
-    :func:`_shorten`), ``s.sweeps`` times or until none is: a strain limit, as cloth solvers
-    project one. Returns float64 of the same shape; frames are independent."""
-    p = np.asarray(positions, np.float64)
-    t, v = (1, p.shape[0]) if p.ndim == 2 else p.shape[:2]
-    x = p.reshape(t * v, 3).copy()
-    edges = s.edges[None] + v * np.arange(t)[:, None, None]  # (T, E, 2) into the frames
-    limit = (1.0 + s.limit) * s.lengths
-    movable = np.ones(len(x), bool)
-    active = np.arange(t)  # frames with an edge still over its limit
-    for _ in range(s.sweeps):
-        hit = _shorten(x, edges[active].reshape(-1, 2), np.tile(limit, len(active)), movable)
-        if not len(hit):
-            break
-        active = np.unique(hit // v)
-    return x.reshape(p.shape)
-
-
-def _shorten(
-    x: np.ndarray, edges: np.ndarray, limit: np.ndarray, movable: np.ndarray
-) -> np.ndarray:
-    """Shorten ``edges`` (E, 2) of ``x`` (V, 3) longer than ``limit`` (E,) back to it (in place):
-    both ends alike where both are ``movable`` (V,) bool, else the movable end alone; each vertex
-    by the mean of its edges' corrections. Every edge needs a movable end. Returns the indices
-    of the vertices moved."""
-    vec = x[edges[:, 1]] - x[edges[:, 0]]
-    length = np.linalg.norm(vec, axis=1)
-    over = np.flatnonzero(length > limit)
-    if not len(over):
-        return over
-    ends = edges[over]
-    m0, m1 = movable[ends[:, 0]], movable[ends[:, 1]]
-    share = 1.0 / (m0.astype(np.float64) + m1)
-    step = (1.0 - limit[over] / length[over])[:, None] * vec[over]
-    count = np.bincount(ends[:, 0], m0, len(x)) + np.bincount(ends[:, 1], m1, len(x))
-    shift = np.stack(
-        [
-            np.bincount(ends[:, 0], m0 * share * step[:, k], len(x))
-            - np.bincount(ends[:, 1], m1 * share * step[:, k], len(x))
-            for k in range(3)
-        ],
-        axis=1,
-    )
-    hit = np.flatnonzero(count)
-    x[hit] += shift[hit] / count[hit, None]
-    return hit

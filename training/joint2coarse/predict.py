@@ -8,7 +8,7 @@ from torch import nn
 
 from core.body.colliders import DEFAULT_MARGIN_M, push_out_of_capsules
 from core.errors import InputError
-from core.sim.embed import StretchLimit, limit_stretch, stretch_limit
+from core.strain import StretchLimit, limit_stretch, stretch_limit
 from training.joint2coarse.body_model import BodyResidualModel
 from training.joint2coarse.config import PREDICTION_STRETCH, PREDICTION_SWEEPS
 from training.joint2coarse.descriptor import (
@@ -79,7 +79,7 @@ def predict_proxy(
     source : str
         Clip name for error messages.
     stretch : StretchLimit, optional
-        Shorten the edges the network stretched past it (:func:`core.sim.embed.limit_stretch`,
+        Shorten the edges the network stretched past it (:func:`core.strain.limit_stretch`,
         :func:`prediction_stretch_limit`), before the push out of the capsules; off when None.
 
     Returns

@@ -74,6 +74,27 @@ def linear_blend_skinning(rest, weights, transforms):
     return posed
 
 
+def limit_stretch_torch(x, edges, lengths, limit: float, sweeps: int):
+    """:func:`core.strain.limit_stretch` in torch: x (B, V, 3) float64, edges (E, 2) int64,
+    lengths (E,) float64 rest lengths -> (B, V, 3), every edge longer than ``1 + limit`` times
+    its rest length shortened back, both ends alike, each vertex by the mean of its edges'
+    corrections, ``sweeps`` times (a sweep with no edge over it changes nothing, so the numpy
+    version's early stop gives the same result). No value is read back to the host."""
+    e0, e1 = edges[:, 0], edges[:, 1]
+    most = (1.0 + limit) * lengths
+    for _ in range(sweeps):
+        vec = x[:, e1] - x[:, e0]
+        length = torch.linalg.vector_norm(vec, dim=-1)
+        over = length > most
+        step = torch.where(over, 0.5 * (1.0 - most / length.clamp_min(1e-300)), 0.0)
+        step = step[..., None] * vec
+        shift = torch.zeros_like(x).index_add_(1, e0, step).index_add_(1, e1, -step)
+        count = torch.zeros_like(x[..., 0]).index_add_(1, e0, over.double())
+        count = count.index_add_(1, e1, over.double())
+        x = x + shift / count.clamp_min(1.0)[..., None]
+    return x
+
+
 class TorchPlayer:
     """A bundle's project on one device (see the module docstring).
 
@@ -119,6 +140,13 @@ class TorchPlayer:
         self.faces = proxy["faces"].to(dev)
         self.uvs = proxy["uvs"].to(dev)
         self.seam_map = proxy["seam_map"].to(dev)
+        self.stretch = proxy.get("stretch")  # None in bundles from before the strain limit
+        if self.stretch is not None:
+            self.stretch = {
+                **self.stretch,
+                "edges": self.stretch["edges"].to(dev),
+                "lengths": self.stretch["lengths"].to(dev).double(),
+            }
         self.body_rest = body["vertices"].to(dev)
         self.body_weights = body["weights"].to(dev)
         self.body_faces = body["faces"].to(dev)
@@ -168,6 +196,10 @@ class TorchPlayer:
         if self.follow is not None:
             local = rotate_partially(local, self._tilt[f], self.follow.double())
         world = local @ self._heading[f].transpose(-1, -2) + self._origin[f][:, None]
+        if self.stretch is not None:  # as Playback's prediction (pipeline.playback)
+            s = self.stretch  # from float32, as predict_proxy limits its float32 output
+            world = world.float().double()
+            world = limit_stretch_torch(world, s["edges"], s["lengths"], s["limit"], s["sweeps"])
         return world.float()[:, self.seam_map]
 
     def body(self, frames) -> torch.Tensor:
