@@ -1,5 +1,5 @@
 """Joint2Coarse's strain limit: what each limit does to a project's validation predictions
-(how :data:`training.joint2coarse.predict.PREDICTION_STRETCH` and ``PREDICTION_SWEEPS`` were
+(how :data:`training.joint2coarse.config.PREDICTION_STRETCH` and ``PREDICTION_SWEEPS`` were
 chosen; docs/decisions.md, "Joint2Coarse's prediction strain-limited").
 
 Usage: ``python benchmarks/joint2coarse_stretch.py PROJECT [--limits 0.01 0.02 0.05]

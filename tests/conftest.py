@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +79,15 @@ def assert_motion_file_refused(dng, folder: Path, path: Path, content, action: s
     assert len(lines) == 1, err
     assert str(path) in lines[0] and problem in lines[0], lines[0]
     assert not out_path.exists() and not (folder / "out").exists()
+
+
+def run_benchmark(script: str, *args) -> subprocess.CompletedProcess:
+    """``python benchmarks/SCRIPT ARGS...`` as a user runs it (arguments turned to text), its
+    output captured."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / script
+    return subprocess.run(
+        [sys.executable, str(path), *map(str, args)], capture_output=True, text=True
+    )
 
 
 def assert_close(actual, expected, atol=1e-6, rtol=0.0, what="arrays"):

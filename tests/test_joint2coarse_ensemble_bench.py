@@ -4,23 +4,14 @@ the results page shows."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
+from functools import partial
 
 import numpy as np
 
 from pipeline.report import _bench_markdown
+from tests.conftest import run_benchmark
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "joint2coarse_ensemble.py"
-
-
-def _run(project: Path, *args) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(BENCH), str(project), *map(str, args)],
-        capture_output=True,
-        text=True,
-    )
+_run = partial(run_benchmark, "joint2coarse_ensemble.py")
 
 
 def test_ensemble_rows(smoke_project, tmp_path, monkeypatch):

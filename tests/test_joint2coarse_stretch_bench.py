@@ -4,19 +4,11 @@ Joint2Coarse predictions."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
+from functools import partial
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "joint2coarse_stretch.py"
+from tests.conftest import run_benchmark
 
-
-def _run(project: Path, *args) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(BENCH), str(project), *map(str, args)],
-        capture_output=True,
-        text=True,
-    )
+_run = partial(run_benchmark, "joint2coarse_stretch.py")
 
 
 def test_stretch_rows(smoke_project, tmp_path):

@@ -5,21 +5,17 @@ on a test motion (``--fit-test``) and mirrored (``--set mirror=true``)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
+from functools import partial
 
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "joint2coarse_validation.py"
+from tests.conftest import run_benchmark
+
 #: The paper model's stages cut short: these tests check the bench, not the model.
 SHORT_STEPS = (
     "--set", "autoencoder_steps=20", "--set", "motion_steps=20", "--set", "finetune_steps=5",
 )  # fmt: skip
 
 
-def _run(project: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, str(BENCH), str(project), *args], capture_output=True, text=True
-    )
+_run = partial(run_benchmark, "joint2coarse_validation.py")
 
 
 def test_realisations(smoke_project, tmp_path, monkeypatch):

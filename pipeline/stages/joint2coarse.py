@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.body.colliders import simulation_colliders
+from core.body.colliders import push_out_of_capsules, simulation_colliders
 from core.body.mannequin import make_body
 from core.body.skinning import pose_body
 from core.camera import make_camera
@@ -235,9 +235,7 @@ def _evaluate_joint2coarse(
     capsules, radii = simulation_colliders(
         config.body, motion, top, sim_config(config).arm_colliders
     )
-    pushed = predict_proxy(
-        net, joints, root_rot, capsules=capsules, radii=radii, stretch=stretch
-    )
+    pushed = push_out_of_capsules(pred, capsules, radii)  # predict_proxy's push, done once
     write_npz(out / f"pred-{name}.npz", positions=pred)
 
     def measured(positions: np.ndarray) -> dict:
