@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from core.camera import resize_camera
+from core.color import linear_to_srgb, srgb_to_linear, to_uint8
 from core.errors import InputError
 from core.raster import MeshScene, RasterConfig
-from core.shading import linear_to_srgb, srgb_to_linear, to_uint8
 
 
 def surface_coverage(

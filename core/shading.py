@@ -1,9 +1,9 @@
 """Ground-truth renders: the detailed garment on the body, and the body alone, from a camera.
 
 What the neural renderer learns to reproduce, so it must be deterministic and consistent across
-views. Lighting is fixed relative to the camera (as in the paper), so every view is lit the
-same way: a hemispherical ambient term (sky above, ground below, in image space) plus soft
-directional lights given in camera space. Surfaces are two-sided (the inside of a skirt is lit
+views. Lighting (:mod:`core.lighting`) is fixed relative to the camera (as in the paper), so
+every view is lit the same way: a hemispherical ambient term (sky above, ground below, in image
+space), soft directional lights given in camera space, and an environment's diffuse light. Surfaces are two-sided (the inside of a skirt is lit
 like its outside), normals are smooth (interpolated vertex normals), and a faint fabric sheen
 brightens grazing angles. Colours are given in sRGB, shaded in linear RGB, averaged over
 ``k x k`` ray samples per pixel (box filter) and written back as sRGB uint8.
@@ -21,9 +21,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.camera import Camera, resize_camera, world_to_camera
+from core.color import linear_to_srgb, srgb_to_linear, to_uint8
 from core.errors import InputError
 from core.features import interpolate
 from core.fileio import atomic_path
+from core.lighting import Lighting, environment_light
 from core.mesh import Mesh, vertex_normals
 from core.raster import MeshScene, RasterConfig, check_mesh_arrays
 
@@ -59,24 +61,6 @@ class Material:
 
 
 @dataclass(frozen=True)
-class Light:
-    """A directional light fixed to the camera."""
-
-    direction: tuple[float, float, float]
-    """Towards the light, in camera space (x right, y down, z forward); normalised on use."""
-    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """Linear RGB."""
-    intensity: float = 1.0
-
-
-def _default_lights() -> tuple[Light, ...]:
-    return (
-        Light((-0.45, -0.65, -0.6), (1.0, 0.97, 0.92), 0.75),  # key: upper left, behind camera
-        Light((0.7, -0.2, -0.45), (0.85, 0.9, 1.0), 0.3),  # fill: right
-    )
-
-
-@dataclass(frozen=True)
 class ShadingConfig:
     """How ground-truth images are rendered."""
 
@@ -88,12 +72,8 @@ class ShadingConfig:
     """The garment's fabric."""
     body: Material = field(default_factory=lambda: Material(color=(0.78, 0.66, 0.58), sheen=0.0))
     """The body's material."""
-    sky: tuple[float, float, float] = (0.42, 0.44, 0.48)
-    """Ambient light from above in the image (linear RGB)."""
-    ground: tuple[float, float, float] = (0.16, 0.15, 0.14)
-    """Ambient light from below in the image (linear RGB)."""
-    lights: tuple[Light, ...] = field(default_factory=_default_lights)
-    """Directional lights fixed to the camera."""
+    lighting: Lighting = field(default_factory=Lighting)
+    """The light, fixed to the camera (:mod:`core.lighting`; default: the ``studio`` rig)."""
     wrap: float = 0.35
     """Diffuse wrap (0 = Lambert): softens the terminator like cloth's subsurface scattering."""
     threads: int = 0
@@ -132,21 +112,6 @@ class GroundTruth:
     mask: np.ndarray
     coverage: np.ndarray
     background: np.ndarray
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    c = np.asarray(c, np.float32)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def linear_to_srgb(c: np.ndarray) -> np.ndarray:
-    c = np.clip(np.asarray(c, np.float32), 0.0, 1.0)
-    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055).astype(np.float32)
-
-
-def to_uint8(c: np.ndarray) -> np.ndarray:
-    """[0, 1] floats to uint8 with rounding."""
-    return np.clip(np.rint(np.asarray(c, np.float32) * 255.0), 0, 255).astype(np.uint8)
 
 
 def headlight_shading(
@@ -258,12 +223,13 @@ def _shade_samples(
     view[:, 2] = -1.0
     view /= np.sqrt(_dot(view, view))[:, None]
     R = camera.R.astype(np.float32)
-    sky = np.asarray(config.sky, np.float32)
-    ground = np.asarray(config.ground, np.float32)
+    lit = config.lighting
+    sky = np.asarray(lit.sky, np.float32)
+    ground = np.asarray(lit.ground, np.float32)
     lights = [
         (np.asarray(li.direction, np.float32) / np.float32(np.linalg.norm(li.direction)),
          np.asarray(li.color, np.float32) * np.float32(li.intensity))
-        for li in config.lights
+        for li in lit.lights
     ]  # fmt: skip
     part_of = np.searchsorted(starts, face_id, side="right") - 1
     for k, part in enumerate(parts):
@@ -299,6 +265,8 @@ def _shade_samples(
         for d, col in lights:
             wrapped = (normal @ d + np.float32(config.wrap)) / np.float32(1 + config.wrap)
             light += np.maximum(wrapped, 0)[:, None] * col
+        if lit.environment:
+            light += environment_light(lit.environment, normal)
         color = albedo * light
         if mat.sheen > 0:
             rim = 1.0 - np.clip(_dot(normal, v), 0.0, 1.0)

@@ -25,7 +25,7 @@ LAYERS = ("core", "templates", "training", "pipeline", "app")
 HEAVY = frozenset({
     "torch", "open3d", "warp", "newton", "scipy", "trimesh", "igl", "pyvista", "vtk",
     "xatlas", "fast_simplification", "tqdm", "PIL", "imageio", "imageio_ffmpeg", "matplotlib",
-    "pxr", "pygltflib", "mpl_toolkits",
+    "pxr", "pygltflib", "mpl_toolkits", "cv2",
 })  # fmt: skip
 
 

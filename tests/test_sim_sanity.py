@@ -287,7 +287,7 @@ def test_quick_proxy_waistband_holds_on_a_squat_a_kick_and_a_kneel(quick_proxy_r
                 "the wide squat's hem is 13.0 cm up 1 s after the legs close as the proxy is, "
                 "and 2.8, 11.4, 16.2, 15.2 and 12.4 cm in the five moved draws (-1.0 and two "
                 "of five over 8 cm when the steps stopped short of their solution; "
-                "docs/decisions.md, \"The proxy's cloth\")",
+                'docs/decisions.md, "The proxy\'s cloth")',
             ),
         ),
         pytest.param(
@@ -298,7 +298,7 @@ def test_quick_proxy_waistband_holds_on_a_squat_a_kick_and_a_kneel(quick_proxy_r
                 "the kick's hem is 8.6 and 8.8 cm up 1 s after the legs first close in two of "
                 "the six draws (0.3 cm after the next closings); within 8 cm in every draw "
                 "before, when the steps stopped short of their solution (docs/decisions.md, "
-                "\"The proxy's cloth\")",
+                '"The proxy\'s cloth")',
             ),
         ),
         "kneel",

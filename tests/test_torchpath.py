@@ -521,3 +521,31 @@ def test_the_strain_limit_in_torch_is_numpys():
     )
     assert np.abs(ref - frames).max() > 1e-3  # it did shorten
     np.testing.assert_allclose(out.numpy(), ref, atol=1e-12)
+
+
+def test_torch_background_matches_numpy_under_another_light(playback):
+    """The torch path lights the body as the ray tracer does, environment light included."""
+    from dataclasses import replace
+
+    from core.lighting import PRESETS, environment_coefficients
+    from core.mesh import Mesh
+    from core.shading import ShadingConfig
+    from core.shading import render_background as numpy_background
+
+    radiance = np.zeros((16, 32, 3), np.float32)
+    radiance[2:6, 4:12] = (6.0, 3.0, 1.0)
+    lit = replace(PRESETS["low-sun"], environment=environment_coefficients(radiance))
+    pb = playback
+    cam = pb.default_camera(2, 80, 64, azimuth_deg=30.0)
+    shading = ShadingConfig(lighting=lit)
+    body = Mesh(pb.body_vertices(2), pb.body_faces)
+    ref = numpy_background(body, cam, shading)
+    out = render_background(
+        torch.from_numpy(pb.body_vertices(2).copy()),
+        torch.from_numpy(pb.body_faces.copy()),
+        TorchCamera.from_camera(cam),
+        shading,
+    ).numpy()
+    assert np.abs(ref.astype(int) - numpy_background(body, cam)).mean() > 5
+    d = np.abs(out.astype(int) - ref.astype(int))
+    assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from core.errors import InputError
+from core.lighting import environment_matrix, sh_basis
 from core.shading import Material, ShadingConfig, srgb_to_linear
 from training.torchpath.raster import TorchCamera, rasterize
 
@@ -88,16 +89,20 @@ def shade(
     normal = normal / length.clamp(min=1e-12)
     normal = torch.where(length <= 1e-6, face_normal, normal)
     albedo = _constant(srgb_to_linear(np.asarray(material.color)), normal)
-    sky, ground = _constant(config.sky, normal), _constant(config.ground, normal)
+    lit = config.lighting
+    sky, ground = _constant(lit.sky, normal), _constant(lit.ground, normal)
     up = 0.5 * (1.0 - normal[..., 1:2])
     light = ground + up * (sky - ground)
-    for li in config.lights:
+    for li in lit.lights:
         d = np.asarray(li.direction, np.float32) / np.float32(np.linalg.norm(li.direction))
         col = np.asarray(li.color, np.float32) * np.float32(li.intensity)
         wrapped = (normal @ _constant(d, normal) + np.float32(config.wrap)) / np.float32(
             1 + config.wrap
         )
         light = light + wrapped.clamp(min=0)[..., None] * _constant(col, normal)
+    if lit.environment:
+        env = _constant(environment_matrix(lit.environment), normal)
+        light = light + (sh_basis(normal, torch) @ env).clamp(min=0)
     color = albedo * light
     if material.sheen > 0:
         rim = 1.0 - (normal * view).sum(-1).clamp(0.0, 1.0)
