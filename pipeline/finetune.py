@@ -1,4 +1,4 @@
-"""Fine-tuning a project's trained renderer to a new body shape or a new background.
+"""Fine-tuning a project's trained renderer to a new body shape, a new background or a new light.
 
 - **Body shape** (:func:`finetune_body_shape`): a sub-project ``PROJECT/finetune/body-NAME/``
   with the parent's pipeline settings but the new :class:`core.body.shape.BodyShape`, and the
@@ -14,6 +14,13 @@
   discriminator train (:func:`training.renderer.train.finetune_background`). Output:
   ``PROJECT/finetune/background-NAME/renderer.pt`` with the images beside it
   (``backdrop-K.png``) for playback.
+- **Light** (:func:`finetune_lighting`, the paper's section (iv)): two samples of the data set
+  rendered again under the new light (:mod:`core.lighting`) over the new backdrop
+  (:class:`LitDataset`); the last two decoder layers and the discriminator train on them for
+  about 100 steps (:func:`training.renderer.train.finetune_relight`). Output:
+  ``PROJECT/finetune/light-NAME/renderer.pt`` with ``lighting.json`` (what the studio and
+  ``dng render`` light the body and the reference with), ``backdrop-0.png`` and
+  ``examples.png`` beside it.
 
 How pixels are separated from the empty studio background: the data set's images are rendered
 (:mod:`core.shading`) over one known clear colour (``ShadingConfig.background``), averaged in
@@ -42,8 +49,11 @@ from core.body.skinning import pose_body
 from core.compositing import fit_image, load_image, recomposite, surface_coverage
 from core.errors import InputError
 from core.fileio import atomic_path, write_json
+from core.lighting import Lighting, environment_view, load_lighting, read_environment
+from core.mesh import Mesh
+from core.motion.load import load_motion
 from core.project import Project
-from core.shading import ShadingConfig, write_png
+from core.shading import ShadingConfig, contact_sheet, render_views, write_png
 from core.sim import load_cache
 from pipeline.config import (
     Log,
@@ -83,23 +93,11 @@ class BackdropDataset:
     """
 
     def __init__(self, base, images: Sequence[np.ndarray], shading=None):
-        from core.motion.load import load_motion
-
         if not images:
             raise InputError("background fine-tuning needs at least one image")
         self.base = base
         self.shading = ShadingConfig() if shading is None else shading
-        root = Path(base.root)
-        index = json.loads((root / "dataset" / "samples.json").read_text())
-        motion_name = index["motion"]
-        config = project_config(Project(root))
-        self.body = make_body(config.body)
-        motion = load_motion(root / "motions" / f"{motion_name}.bvh")
-        self.body_frames = pose_body(self.body, motion)
-        target = root / "sim" / f"{motion_name}-target" / "cache.npz"
-        if not target.is_file():
-            raise InputError("no detailed target cache (the data set's ground truth)", target)
-        self.target = load_cache(target)
+        self.body, self.body_frames, self.target = _scene(base)
         self.images = [np.asarray(im, np.uint8) for im in images]
         self._fitted: dict[tuple[int, int, int], np.ndarray] = {}
 
@@ -143,6 +141,108 @@ class BackdropDataset:
                 out = recomposite(img, cov, clear, back)
                 frames.append(out.transpose(2, 0, 1).astype(np.float32) / 255)
             sample[key] = torch.from_numpy(np.ascontiguousarray(np.stack(frames)))
+        return sample
+
+
+def _scene(base):
+    """The body (a :class:`core.mesh.Mesh`-like record), its posed vertices (T, V, 3) and the
+    detailed target's cache of the motion a data set (or test set) ``base`` shows."""
+    root = Path(base.root)
+    index = json.loads((Path(base.folder) / "samples.json").read_text())
+    motion_name = index["motion"]
+    config = project_config(Project(root))
+    body = make_body(config.body)
+    body_frames = pose_body(body, load_motion(root / "motions" / f"{motion_name}.bvh"))
+    target = root / "sim" / f"{motion_name}-target" / "cache.npz"
+    if not target.is_file():
+        raise InputError("no detailed target cache (the data set's ground truth)", target)
+    return body, body_frames, load_cache(target)
+
+
+class LitDataset:
+    """Samples of a data set (or a test set) rendered again under another light.
+
+    Sample ``i`` is the base's sample ``indices[i]``: the same proxy inputs, with its
+    ``target`` (garment on body), ``background`` (body alone) and ``target_mask`` frames
+    t-1, t, t+1 rendered by :func:`core.shading.render_views` under ``lighting`` and
+    recomposited over ``backdrop`` (fitted to the image; None keeps the clear colour). Renders
+    are made once, on first use.
+
+    Parameters
+    ----------
+    base : training.dataset.GarmentDataset
+    lighting : core.lighting.Lighting
+    backdrop : (H, W, 3) uint8 or None
+    indices : base samples to take (default: all of them)
+    threads : ray-casting threads (0: every core)
+    """
+
+    def __init__(self, base, lighting: Lighting, backdrop=None, indices=None, threads: int = 0):
+        self.base = base
+        self.indices = list(range(len(base))) if indices is None else [int(i) for i in indices]
+        if not self.indices:
+            raise InputError("a relit data set needs at least one sample")
+        for i in self.indices:
+            if not 0 <= i < len(base):
+                raise InputError(f"sample {i} is not in the data set ({len(base)} samples)")
+        self.shading = ShadingConfig(lighting=lighting, threads=threads)
+        self.backdrop = None if backdrop is None else np.asarray(backdrop, np.uint8)
+        self.body, self.body_frames, self.target = _scene(base)
+        self.samples = [base.samples[i] for i in self.indices]
+        self._renders: dict[int, dict] = {}
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def with_motion_per_vertex(self) -> LitDataset:
+        """The same samples over the base's per-vertex motion features (a GPU trainer's)."""
+        other = copy.copy(self)
+        other.base = self.base.with_motion_per_vertex()
+        return other
+
+    def frames(self, i: int) -> dict[str, np.ndarray]:
+        """Sample i's renders: ``target`` and ``background`` (3, 3, H, W) float32 in [0, 1],
+        ``target_mask`` (3, 1, H, W) float32 (garment coverage)."""
+        if i in self._renders:
+            return self._renders[i]
+        t, _, camera = self.samples[i]
+        k = self.shading.supersample
+        clear = self.shading.background
+        body_faces = self.body.faces
+        back = None
+        if self.backdrop is not None:
+            back = fit_image(self.backdrop, camera.width, camera.height)
+        faces_all = np.concatenate([self.target.faces, body_faces + self.target.num_vertices])
+        out = {"target": [], "background": [], "target_mask": []}
+        for f in (t - 1, t, t + 1):
+            body = self.body_frames[f]
+            gt = render_views(
+                Mesh(self.target.positions[f], self.target.faces),
+                Mesh(body, body_faces),
+                [camera],
+                self.shading,
+            )[0]
+            image, background = gt.image, gt.background
+            if back is not None:
+                verts = np.concatenate([self.target.positions[f], body]).astype(np.float32)
+                image = recomposite(
+                    image, surface_coverage(verts, faces_all, camera, k), clear, back
+                )
+                background = recomposite(
+                    background, surface_coverage(body, body_faces, camera, k), clear, back
+                )
+            out["target"].append(image.transpose(2, 0, 1).astype(np.float32) / 255)
+            out["background"].append(background.transpose(2, 0, 1).astype(np.float32) / 255)
+            out["target_mask"].append(gt.coverage[None].astype(np.float32))
+        self._renders[i] = {key: np.stack(v) for key, v in out.items()}
+        return self._renders[i]
+
+    def __getitem__(self, i: int) -> dict:
+        import torch
+
+        sample = dict(self.base[self.indices[i]])
+        for key, value in self.frames(i).items():
+            sample[key] = torch.from_numpy(np.ascontiguousarray(value))
         return sample
 
 
@@ -250,6 +350,115 @@ def finetune_background_images(
             "mode": "background",
             "parent_model": str(model),
             "images": [str(p) for p in image_paths],
+            "steps": result.steps,
+        },
+    )
+    return _result(result, out, trace)
+
+
+#: Steps of a relighting fine-tune: the paper's "about 100 iterations".
+RELIGHT_STEPS = 100
+#: Example renders a relighting fine-tune learns from: the paper's two.
+RELIGHT_EXAMPLES = 2
+#: Beside a relit model: the light its body and reference are rendered under, and the backdrop.
+LIGHTING_FILE, BACKDROP_FILE = "lighting.json", "backdrop-0.png"
+
+
+def example_samples(n_samples: int, examples: int) -> list[int]:
+    """Indices of ``examples`` samples spread evenly over a data set of ``n_samples``."""
+    if examples < 1:
+        raise InputError(f"give at least one example, got {examples}")
+    if examples > n_samples:
+        raise InputError(f"{examples} examples asked of a data set of {n_samples} samples")
+    return [int((k + 0.5) * n_samples / examples) for k in range(examples)]
+
+
+def lighting_backdrop(spec, lighting: Lighting, background, camera) -> np.ndarray | None:
+    """The backdrop of a relit view: the ``background`` image when given; else, for an
+    environment image, what the camera sees of it (:func:`core.lighting.environment_view`);
+    else None (the clear studio colour)."""
+    if background is not None:
+        return load_image(background)
+    if lighting.environment:
+        return environment_view(read_environment(spec), camera)
+    return None
+
+
+def saved_lighting(model_path: str | os.PathLike) -> Lighting | None:
+    """The light a relit model was fine-tuned to (``lighting.json`` beside it), or None."""
+    path = Path(model_path).parent / LIGHTING_FILE
+    return load_lighting(path) if path.is_file() else None
+
+
+def finetune_lighting(
+    project_root: str | os.PathLike,
+    lighting: str | os.PathLike,
+    name: str | None = None,
+    *,
+    background: str | os.PathLike | None = None,
+    examples: int = RELIGHT_EXAMPLES,
+    steps: int = RELIGHT_STEPS,
+    renderer_path: str | os.PathLike | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    callback=None,
+    log: Log = quiet,
+) -> FinetuneResult:
+    """Fine-tune the project's renderer to a new light from a few example renders.
+
+    Parameters
+    ----------
+    project_root : a project with a trained renderer and its data set
+    lighting : a light preset's name, an environment image or a lighting JSON
+        (:func:`core.lighting.load_lighting`)
+    name : the result's folder is ``PROJECT/finetune/light-NAME/`` (default: the light's name)
+    background : a backdrop image (default: an environment image's own view, or none)
+    examples : data-set samples rendered under the light (:func:`example_samples`)
+    steps : fine-tuning steps
+    callback : called after each step with (step, losses) (raising stops the run)
+
+    Writes ``renderer.pt``, its checkpoint and loss log, ``lighting.json``, ``backdrop-0.png``
+    (when there is a backdrop), ``examples.png`` (the example frames) and ``finetune.json``.
+    """
+    from training.renderer.train import finetune_relight
+
+    root = Path(project_root)
+    if not root.is_dir():
+        raise InputError("project folder not found", root)
+    if steps < 1:
+        raise InputError(f"steps must be >= 1, got {steps}")
+    lit = load_lighting(lighting)  # a bad light or image fails before any work
+    model = parent_renderer(root, renderer_path)
+    base = GarmentDataset(root, source=project_config(Project(root)).renderer_source)
+    indices = example_samples(len(base), examples)
+    backdrop = lighting_backdrop(lighting, lit, background, base.samples[0][2])
+    out = root / FINETUNE_DIR / f"light-{check_name(name or Path(lit.name).stem)}"
+    data = LitDataset(base, lit, backdrop, indices)
+    log(f"relighting {model} to {lit.name}: {len(indices)} example renders, {steps} steps")
+    trace = _LossTrace()
+
+    def step(i: int, losses) -> None:
+        trace(i, losses)
+        if callback is not None:
+            callback(i, losses)
+
+    result = finetune_relight(
+        model, data, out, steps=steps, device=device, progress=progress, callback=step
+    )
+    write_json(out / LIGHTING_FILE, lit.to_dict())
+    if backdrop is not None:
+        write_png(out / BACKDROP_FILE, backdrop)
+    frames = [data.frames(i)["target"][1] for i in range(len(data))]
+    tiles = [(f.transpose(1, 2, 0) * 255 + 0.5).astype(np.uint8) for f in frames]
+    write_png(out / "examples.png", contact_sheet(tiles, [f"example {i}" for i in indices]))
+    write_json(
+        out / "finetune.json",
+        {
+            "mode": "lighting",
+            "parent_model": str(model),
+            "lighting": str(lighting),
+            "background": None if background is None else str(background),
+            "examples": indices,
             "steps": result.steps,
         },
     )

@@ -194,6 +194,83 @@ def test_backdrop_samples_per_vertex_for_a_gpu(smoke_project):
         assert torch.equal(dense[k], compact[k]), k
 
 
+def test_finetune_lighting_relights_and_plays(smoke_project, tmp_path, dng):
+    """``dng finetune --lighting``: the relit model, its light and examples; ``dng render``
+    lights the body and the reference with the light beside the model."""
+    from PIL import Image
+
+    from core.lighting import PRESETS, load_lighting
+    from training.renderer import load_model, relight_parameters
+
+    code, out, err = dng("finetune", smoke_project, "--lighting", "low-sun", "--steps", 2)
+    assert code == 0, err
+    folder = smoke_project / "finetune" / "light-low-sun"
+    assert str(folder / "renderer.pt") in out and "loss: generator" in out
+    assert load_lighting(folder / "lighting.json") == PRESETS["low-sun"]
+    assert (folder / "examples.png").is_file() and not (folder / "backdrop-0.png").exists()
+    _, parent, parent_d = load_model(smoke_project / "renderer" / "renderer.pt")
+    _, tuned, tuned_d = load_model(folder / "renderer.pt")
+    before, after = parent.state_dict(), tuned.state_dict()
+    changed = {k for k in before if not torch.equal(before[k], after[k])}
+    assert changed == set(relight_parameters(parent))
+    d0, d1 = parent_d.state_dict(), tuned_d.state_dict()
+    assert any(not torch.equal(d0[k], d1[k]) for k in d0)  # the discriminator trains too
+
+    def reference(*extra):
+        frames = tmp_path / f"ref{len(extra)}"
+        code, _, err = dng(
+            "render", smoke_project, "--motion", "walk", "--frames", 1, "--size", 48,
+            "--camera", "front", "--side-by-side", "--renderer", folder / "renderer.pt",
+            *extra, "--out", f"{frames}/",
+        )  # fmt: skip
+        assert code == 0, err
+        return np.asarray(Image.open(frames / "frame_00000.png").convert("RGB"))[:, 48:]
+
+    warm, studio = reference(), reference("--lighting", "studio")
+    lit = np.abs(warm.astype(int) - studio).sum(-1) > 30
+    assert lit.mean() > 0.02  # the reference is lit by the model's light unless told otherwise
+
+
+def test_finetune_lighting_from_an_environment_image(smoke_project, tmp_path, dng):
+    import cv2
+    from PIL import Image
+
+    sky = np.zeros((16, 32, 3), np.float32)
+    sky[:8] = (0.4, 0.6, 1.5)  # a blue sky above a dark ground
+    cv2.imwrite(str(tmp_path / "sky.hdr"), sky[..., ::-1])
+    code, out, err = dng(
+        "finetune", smoke_project, "--lighting", tmp_path / "sky.hdr", "--steps", 1
+    )
+    assert code == 0, err
+    folder = smoke_project / "finetune" / "light-sky"
+    backdrop = np.asarray(Image.open(folder / "backdrop-0.png"))
+    assert backdrop[0, 0, 2] > backdrop[0, 0, 0] and backdrop[-1, 0].max() == 0  # its own view
+
+
+def test_finetune_lighting_bad_inputs_write_nothing(smoke_project, tmp_path, dng):
+    root = smoke_project / "finetune"
+    before = set(root.iterdir()) if root.is_dir() else set()
+    gone = tmp_path / "gone.hdr"
+    code, _, err = dng("finetune", smoke_project, "--lighting", gone)
+    assert code == 2 and str(gone) in err and len(err.strip().splitlines()) == 1
+    broken = tmp_path / "broken.exr"
+    broken.write_text("not an image")
+    code, _, err = dng("finetune", smoke_project, "--lighting", broken)
+    assert code == 2 and str(broken) in err
+    code, _, err = dng("finetune", smoke_project, "--lighting", "dusk")
+    assert code == 2 and "unknown light preset" in err
+    code, _, err = dng("finetune", smoke_project, "--lighting", "overcast", "--examples", 0)
+    assert code == 2 and "at least one example" in err
+    code, _, err = dng(
+        "finetune", smoke_project, "--lighting", "overcast", "--background", tmp_path / "no.png"
+    )
+    assert code == 2 and "no.png" in err
+    code, _, err = dng("finetune", smoke_project)
+    assert code == 2 and "--lighting" in err
+    after = set(root.iterdir()) if root.is_dir() else set()
+    assert after == before  # no half-written model
+
+
 def test_finetune_bad_inputs(smoke_project, tmp_path, dng):
     bad = tmp_path / "broken.png"
     bad.write_text("not an image")

@@ -19,7 +19,9 @@ from training.renderer import (
     background_finetune_parameters,
     finetune_background,
     finetune_body,
+    finetune_relight,
     load_model,
+    relight_parameters,
     synthetic_scene,
     train_renderer,
 )
@@ -173,6 +175,29 @@ def test_nan_guard_skips_reports_and_counts(data, tmp_path, monkeypatch):
     assert int(rows[-1]["skipped"]) == n_skip
     assert all(math.isfinite(float(r["loss_g"])) for r in rows if r["loss_g"])
     assert all(torch.isfinite(p).all() for p in res.net.parameters())
+
+
+def test_relighting_trains_exactly_the_last_two_layers_and_the_discriminator(data, tmp_path):
+    cfg = TINY.replace(steps=4, preview_every=0)
+    base = train_renderer(data, tmp_path / "base", cfg, progress=False)
+    g0 = _state(base)
+    lit = finetune_relight(base.model_path, data, tmp_path / "lit", steps=3, progress=False)
+    assert lit.steps == 3
+    names = set(relight_parameters(lit.net))
+    # The last two layers before the image: the refinement's last residual block, the output.
+    assert names == {
+        f"refiner.{layer}.{p}"
+        for layer in ("blocks.1.conv1", "blocks.1.conv2", "to_rgb")
+        for p in ("weight", "bias")
+    }
+    for n, p in lit.net.named_parameters():
+        if n in names:
+            assert not torch.equal(p, g0[f"g.{n}"]), f"{n} did not train"
+        else:
+            assert torch.equal(p, g0[f"g.{n}"]), f"{n} changed but is frozen"
+    d1 = dict(lit.discriminator.named_parameters())
+    d0 = {k[2:]: v for k, v in g0.items() if k.startswith("d.") and k[2:] in d1}
+    assert d0 and any(not torch.equal(d1[k], v) for k, v in d0.items())  # it trains too
 
 
 def test_finetuning_touches_only_what_it_should(data, tmp_path):

@@ -20,6 +20,9 @@ from core.camera import (
 )
 from core.compositing import load_image
 from core.errors import InputError
+from core.lighting import load_lighting
+from core.shading import ShadingConfig
+from pipeline.finetune import saved_lighting
 from pipeline.playback import FrameWriter, Playback, load_motion_for
 
 #: Image size (pixels per side) of the built-in cameras when --size is not given.
@@ -91,6 +94,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="IMG",
         help="composite the body over this image (for background fine-tuned renderers; "
         "default: backdrop-0.png beside --renderer when there is one)",
+    )
+    p.add_argument(
+        "--lighting",
+        default=None,
+        metavar="LIGHT",
+        help="light the body and the reference with a preset, an environment image or a "
+        "lighting.json (default: lighting.json beside --renderer when there is one, else the "
+        "data set's studio light)",
     )
     p.add_argument("--device", default="cpu", help="torch device of the renderer (cpu, cuda)")
     p.set_defaults(handler=run)
@@ -168,7 +179,11 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--camera must be orbit, front or a .json file, got {args.camera!r}")
         file_cameras = cameras_from_file(args.camera)
     torch.set_num_threads(1)  # one thread is the robust choice beside other work (see pipeline)
-    pb = Playback(args.project, device=args.device, renderer_path=args.renderer)
+    lighting = None if args.lighting is None else load_lighting(args.lighting)
+    if lighting is None and args.renderer is not None:
+        lighting = saved_lighting(args.renderer)
+    shading = None if lighting is None else ShadingConfig(lighting=lighting)
+    pb = Playback(args.project, device=args.device, renderer_path=args.renderer, shading=shading)
     pb.renderer  # noqa: B018 - a missing or bad model fails now, before any work
     backdrop = args.backdrop
     if backdrop is None and args.renderer is not None:

@@ -404,6 +404,15 @@ def background_finetune_parameters(net: RenderNet) -> list[str]:
     return [n for n, _ in net.named_parameters() if n.startswith(prefixes)]
 
 
+def relight_parameters(net: RenderNet) -> list[str]:
+    """Names of the parameters relighting trains (the paper's section (iv): "the last two
+    decoder layers"): the refinement's last residual block and its output convolution, the two
+    layers nearest the image. Everything else, the texture readout included, stays frozen."""
+    last = len(net.refiner.blocks) - 1
+    prefixes = (f"refiner.blocks.{last}.", "refiner.to_rgb.")
+    return [n for n, _ in net.named_parameters() if n.startswith(prefixes)]
+
+
 class PatchDiscriminator(nn.Module):
     """Spectral-norm PatchGAN on pairs of consecutive frames (70 px receptive field).
 

@@ -44,6 +44,7 @@ from training.renderer.model import (
     PatchDiscriminator,
     RenderNet,
     background_finetune_parameters,
+    relight_parameters,
     texture_colour_loss,
 )
 
@@ -57,9 +58,10 @@ LOG_COLUMNS = (
     "step", "epoch", "loss_g", "l1", "pyramid", "detail", "perceptual", "fm", "gan_g", "loss_d",
     "skipped", "seconds",
 )  # fmt: skip
-#: What a run trains: everything, or (background fine-tuning) the last decoder layers, the
-#: refinement blocks and the discriminator.
-TRAINABLE = ("all", "background")
+#: What a run trains: everything; (background fine-tuning) the last decoder layers, the
+#: refinement blocks and the discriminator; or (relighting) the last two layers and the
+#: discriminator (:func:`training.renderer.model.relight_parameters`).
+TRAINABLE = ("all", "background", "relight")
 
 
 @dataclass(frozen=True)
@@ -236,8 +238,9 @@ def renderer_trainer(
         net.load_state_dict(net0.state_dict())
         if disc0 is not None and disc is not None:
             disc.load_state_dict(disc0.state_dict())
-    if trainable == "background":
-        names = set(background_finetune_parameters(net))
+    if trainable != "all":
+        pick = background_finetune_parameters if trainable == "background" else relight_parameters
+        names = set(pick(net))
         for n, p in net.named_parameters():
             p.requires_grad_(n in names)
     files = RunFiles(
@@ -303,7 +306,8 @@ def train_renderer(
     device : "cpu" or "cuda[:i]" (under torchrun, each process's own device)
     steps : steps of this run (``config.steps`` when None)
     init_from : a model file (or training checkpoint) whose weights start the run (fine-tuning)
-    trainable : ``"all"`` or ``"background"`` (see :func:`finetune_background`)
+    trainable : ``"all"``, ``"background"`` (see :func:`finetune_background`) or ``"relight"``
+        (:func:`finetune_relight`)
     progress : show a tqdm bar (rank 0 only)
     callback : called after each step with (step, losses or None if skipped); raising from it
         stops the run, which resumes from the last checkpoint
@@ -410,4 +414,22 @@ def finetune_background(
         steps = cfg.background_finetune_steps
     return train_renderer(
         dataset, out_dir, cfg, steps=steps, init_from=model_path, trainable="background", **kwargs
+    )
+
+
+def finetune_relight(
+    model_path: str | os.PathLike,
+    dataset,
+    out_dir: str | os.PathLike,
+    config: RendererConfig | None = None,
+    *,
+    steps: int = 100,
+    **kwargs,
+) -> RendererTrainResult:
+    """Fine-tune to a new light from a few example renders (the paper's section (iv)): only the
+    last two decoder layers (:func:`training.renderer.model.relight_parameters`) and the
+    discriminator, when the model has one, train, for ``steps`` (the paper's about 100)."""
+    cfg = config or load_model(model_path)[0]
+    return train_renderer(
+        dataset, out_dir, cfg, steps=steps, init_from=model_path, trainable="relight", **kwargs
     )
