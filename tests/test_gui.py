@@ -516,6 +516,37 @@ def test_errors_export_and_settings(tour):
     assert restored["eye_diff"] < 1e-3 and restored["target_diff"] < 1e-3
 
 
+@pytest.mark.gui
+def test_relighting_plays_the_relit_model_beside_the_reference_under_its_light(tour):
+    """The tour picks a missing environment image (an error), an environment image, then a
+    preset, fine-tunes to it in a few steps and shows the relit neural render beside the
+    reference rendered under the same light, at the frame and camera it was on."""
+    from app.gui.tour import RELIGHT_PRESET, RELIGHT_STEPS
+    from pipeline.finetune import saved_lighting
+
+    report, out = tour
+    r = report["relight"]
+    assert "sky.hdr" in r["error"] and "not found" in r["error"]
+    assert r["environment"]["chosen"] == str(out / "sky.png")
+    assert r["environment"]["items"][-2:] == ["sky.png", "environment image..."]
+    model = Path(r["model"])
+    assert model.is_file() and model.parent.name == f"light-{RELIGHT_PRESET}"
+    assert model.parent.parent.name == "finetune"
+    assert saved_lighting(model).name == RELIGHT_PRESET
+    last_row = (model.parent / "renderer_loss.csv").read_text().strip().splitlines()[-1]
+    assert last_row.startswith(f"{RELIGHT_STEPS},")  # every step ran
+    assert r["label"] == f"relit model ({RELIGHT_PRESET}): {model}"
+    # the playback switched to the relit model and its light, in the comparison view
+    assert r["playback_renderer"] == str(model) and r["lighting"] == RELIGHT_PRESET
+    assert r["view"] == "compare" and r["compare_shape"][1] > r["compare_shape"][0]
+    assert r["frames"][0] == r["frames"][1]  # the frame (and the camera) kept
+    assert r["reference_diff"] > 2  # the reference, rendered under the new light
+    assert r["neural_diff"] > 1  # the relit render
+    assert r["errors"] == [r["error"]]
+    assert r["restored_lighting"] == "studio"  # the project's own renderer again
+    assert (out / "gui-relight.png").stat().st_size > 10_000
+
+
 # ----------------------------------------------------------------------- the real main loop
 #
 # ``dng gui PROJECT --play`` started as a user starts it, with no input event at all: the
@@ -672,3 +703,152 @@ def test_the_pipeline_tab_says_which_stage_runs_and_the_time_left(tmp_path):
     tab.update_widgets()
     assert view.job_label.text.startswith("all: simulate (2/4), 25%, about ")
     assert view.progress.value == 0.25
+
+
+class _Combo:
+    """A stand-in for an Open3D Combobox: its items and the selected index."""
+
+    def __init__(self):
+        self.items: list[str] = []
+        self.selected_index = 0
+
+    def clear_items(self) -> None:
+        self.items = []
+
+    def add_item(self, text: str) -> None:
+        self.items.append(text)
+
+
+def _motion_tab_without_window(project: Path):
+    """The Motion tab and the Pipeline tab's job runner on a studio with no window: real
+    workers, stand-in widgets; what the workers post runs when the test calls ``pump()``."""
+    from types import SimpleNamespace
+
+    from app.gui.tabs.motion import MotionTab
+    from app.gui.tabs.pipeline import PipelineTab
+
+    label = lambda: SimpleNamespace(text="")  # noqa: E731
+    view = SimpleNamespace(
+        finetune_label=label(), job_label=label(), log_label=label(), status=label(),
+        progress=SimpleNamespace(value=0.0), light_combo=_Combo(),
+    )  # fmt: skip
+    posted: list = []
+    errors: list = []
+    studio = SimpleNamespace(
+        view=view, project=project, settings=GuiSettings(), post=posted.append,
+        show_error=errors.append,
+        player=SimpleNamespace(pause=lambda: None, mode="garment", num_frames=0),
+        misc_worker=Worker(posted.append, "plots"),
+    )  # fmt: skip
+    studio.job_worker = Worker(posted.append, "jobs")
+    studio.pipeline_tab = PipelineTab(studio)
+    studio.pipeline_tab._last_plot = time.perf_counter() + 1e6  # no loss plots
+    tab = MotionTab(studio)
+
+    def pump(until=None, timeout: float = 10.0) -> None:
+        """Run what the workers post until ``until()`` holds (default: both are idle)."""
+        end = time.perf_counter() + timeout
+        while time.perf_counter() < end:
+            while posted:
+                posted.pop(0)()
+            if until is not None and until():
+                return
+            if until is None and studio.job_worker.idle and studio.misc_worker.idle:
+                if not posted:
+                    return
+            time.sleep(0.01)
+        raise TimeoutError("the workers were still busy")
+
+    return tab, studio, errors, pump
+
+
+def test_the_light_picker_offers_presets_and_environment_images(tmp_path):
+    """The picker lists the presets and a last item that opens a file dialog; a bad image is
+    an error and the choice stays; an environment image read well joins the list, chosen."""
+    from PIL import Image
+
+    from app.gui.tabs.motion import ENVIRONMENT_ITEM
+    from core.lighting import PRESETS
+
+    tab, studio, errors, pump = _motion_tab_without_window(tmp_path)
+    assert tab.light_items == [*PRESETS, ENVIRONMENT_ITEM]
+    assert tab.light_specs[-1] is None and tab.light_spec == "studio"
+    tab.set_light("/nonexistent/sky.hdr")
+    pump()
+    assert len(errors) == 1 and "not found" in str(errors[0])
+    assert tab.light_spec == "studio" and studio.view.light_combo.selected_index == 0
+    sky = tmp_path / "sky.png"
+    Image.fromarray(np.full((16, 32, 3), 180, np.uint8)).save(sky)
+    tab.set_light(sky)
+    pump()
+    assert tab.light_spec == str(sky) and len(errors) == 1
+    assert studio.view.light_combo.items == [*PRESETS, "sky.png", ENVIRONMENT_ITEM]
+    assert studio.view.light_combo.selected_index == len(PRESETS)
+    assert studio.view.finetune_label.text == "light: sky.png"
+    tab.set_light("low-sun")
+    pump()
+    assert tab.light_spec == "low-sun"
+    assert studio.view.light_combo.selected_index == list(PRESETS).index("low-sun")
+    for worker in (studio.job_worker, studio.misc_worker):
+        worker.stop()
+
+
+def test_relighting_shows_each_step_cancels_and_plays_the_relit_model(tmp_path, monkeypatch):
+    """The button "Fine-tune to this light" runs pipeline.finetune.finetune_lighting on the jobs
+    worker: the label says step i of n; Cancel raises from its callback at the next step; a
+    finished run plays the relit model under its light in the comparison view."""
+    import threading
+
+    import app.gui.tabs.motion as motion
+    from core.lighting import PRESETS
+    from pipeline.finetune import FinetuneResult
+
+    tab, studio, errors, pump = _motion_tab_without_window(tmp_path)
+    first_step, go = threading.Event(), threading.Event()
+    steps_run: list[int] = []
+
+    def fake_finetune(root, spec, *, steps, callback, log, progress):
+        out = Path(root) / "finetune" / f"light-{spec}"
+        for i in range(1, steps + 1):
+            steps_run.append(i)
+            callback(i, {"loss_g": 1.0})
+            if i == 1:
+                first_step.set()
+                go.wait(10)
+        out.mkdir(parents=True)
+        (out / "renderer.pt").write_bytes(b"model")
+        (out / "lighting.json").write_text(json.dumps(PRESETS[spec].to_dict()))
+        return FinetuneResult(out / "renderer.pt", out, steps, None, None, None, None)
+
+    monkeypatch.setattr(motion, "finetune_lighting", fake_finetune)
+    opened = []
+    monkeypatch.setattr(tab, "open_playback", lambda root, **kw: opened.append((root, kw)))
+    tab.light_spec = "low-sun"
+
+    tab.finetune_light(steps=5)
+    assert studio.view.finetune_label.text == "relight to low-sun: starting"
+    assert first_step.wait(10)
+    pump(until=lambda: "step 1 of 5" in studio.view.finetune_label.text)
+    assert studio.view.finetune_label.text.startswith("relight to low-sun: step 1 of 5")
+    tab.cancel_finetune()
+    assert studio.view.finetune_label.text == "relight: cancelling ..."
+    go.set()
+    pump()
+    assert steps_run == [1, 2]  # stopped by the callback of the next step
+    assert type(errors[-1]).__name__ == "Cancelled"
+    assert "cancelled" in studio.view.finetune_label.text
+    assert not tab.relighting and opened == []
+
+    first_step.clear()
+    go.set()
+    tab.finetune_light(steps=3)
+    pump()
+    assert steps_run[2:] == [1, 2, 3]
+    model = tmp_path / "finetune" / "light-low-sun" / "renderer.pt"
+    assert studio.view.finetune_label.text == f"relit model (low-sun): {model}"
+    [(root, kw)] = opened
+    assert root == tmp_path and kw["renderer_path"] == model
+    assert kw["lighting"] == PRESETS["low-sun"] and kw["backdrop"] is None
+    assert studio.settings.view_mode == "compare"  # the relit render beside the reference
+    for worker in (studio.job_worker, studio.misc_worker):
+        worker.stop()

@@ -17,8 +17,10 @@ Threads (STYLE #8): widgets are touched only on the main thread. Work runs on fo
 - ``proxy``: garment loading and proxy derivation (slider changes coalesce: the last wins);
 - ``playback``: every call into :class:`pipeline.playback.Playback` (it is not thread-safe):
   loading, motions, live neural renders (coalesced: the newest camera/frame wins), exports;
-- ``jobs``: pipeline stages (simulation, data set, training), fine-tuning; cancellable;
-- ``plots``: loss-curve and preview pictures of a running job.
+- ``jobs``: pipeline stages (simulation, data set, training), fine-tuning (a body, a
+  background, a light); cancellable;
+- ``plots``: loss-curve and preview pictures of a running job; the light picker's
+  environment images, read before they are offered.
 
 Results come back through :meth:`Studio.post` into an inbox that the main loop
 (:meth:`Studio.run_loop`: ``run_one_tick`` then :meth:`Studio.service`) empties between ticks;

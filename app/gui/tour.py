@@ -4,8 +4,9 @@ save a screenshot of each step and the measurements into ``DIR/tour.json``, then
 The GUI tests run it in a subprocess (under Xvfb) and check what it wrote; the screenshots in
 ``docs/`` come from it. Steps: open the window (timed), load a built-in garment, derive the
 proxy and change its texture size (atlas only), an error dialog, open the project, load a
-motion, the neural viewport (a drag, a scrub, play, the comparison view), live neural render
-from two cameras, continuous play in the 3D view (with a screenshot after it), stepping frames
+motion, the neural viewport (a drag, a scrub, play, the comparison view), relighting (a bad
+environment image, an environment image, a preset; a fine-tune of ``RELIGHT_STEPS`` steps, the
+relit render beside the reference under the same light), live neural render from two cameras, continuous play in the 3D view (with a screenshot after it), stepping frames
 and the live render's frame rate at 128 px (on its worker), the simulated proxy beside
 Joint2Coarse, camera keys at two frames with MP4 and GIF export along them, a cancelled export,
 the path as JSON, OBJ export, settings saved and read back.
@@ -29,6 +30,10 @@ from app.gui.model import CameraPose, camera_from_gl, load_settings
 
 #: Seconds of continuous play in the tour.
 PLAY_SECONDS = 4.0
+#: Steps of the tour's relighting fine-tune (the studio's default is 100).
+RELIGHT_STEPS = 2
+#: The light preset the tour fine-tunes to.
+RELIGHT_PRESET = "low-sun"
 
 
 def _png(path: Path, image: np.ndarray) -> None:
@@ -187,6 +192,7 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     report["compare_shape"] = list(player.neural_image.shape)
     studio.screenshot(out / "gui-compare.png")
     note("saved gui-compare.png")
+    relight(studio, out, report, note)
 
     # the 3D view for the steps below; a switch back to the neural view froze software Vulkan
     # (docs/gui.md), so the export renders from the 3D view's camera without one
@@ -322,3 +328,65 @@ def tour(project: str, out: Path, report: dict, width: int, height: int) -> None
     report["errors"] = list(studio.errors)
     report["total_s"] = time.perf_counter() - t0
     studio.on_close()
+
+
+def relight(studio, out: Path, report: dict, note) -> None:
+    """The relighting step, in the comparison view: a missing environment image (an error),
+    an environment image (picked, not fine-tuned to), then the ``RELIGHT_PRESET`` preset,
+    fine-tuned to in ``RELIGHT_STEPS`` steps; the relit render plays beside the reference
+    under the same light (screenshot ``gui-relight.png``). Then back to the project's own
+    renderer and light for the steps that follow."""
+    player, motion_tab = studio.player, studio.motion_tab
+    note("2c. relight: light picker, fine-tune, relit render beside the reference")
+    before = player.neural_image.copy()
+    frame = player.frame
+    n_errors = len(studio.errors)
+    motion_tab.set_light("/nonexistent/sky.hdr")
+    studio.wait_idle()
+    error = studio.errors[-1] if len(studio.errors) > n_errors else None
+    studio.view.close_dialog()
+    # an environment image: a sky above a dark ground, equirectangular (2:1)
+    sky = np.zeros((32, 64, 3), np.uint8)
+    sky[:16] = (150, 180, 230)
+    sky[16:] = (60, 50, 40)
+    _png(out / "sky.png", sky)
+    motion_tab.set_light(str(out / "sky.png"))
+    studio.wait_idle()
+    environment = {
+        "items": list(motion_tab.light_items),
+        "chosen": motion_tab.light_spec,
+        "label": studio.view.finetune_label.text,
+    }
+    motion_tab.set_light(RELIGHT_PRESET)
+    studio.wait_idle()
+    studio.view.tabs.selected_tab_index = 1
+    t0 = time.perf_counter()
+    motion_tab.finetune_light(steps=RELIGHT_STEPS)
+    studio.wait_idle(timeout=240)
+    seconds = time.perf_counter() - t0
+    after = player.neural_image.copy()
+    pb = player.playback  # the workers are idle: nothing else touches it now
+    half = before.shape[1] // 2, after.shape[1] // 2
+    report["relight"] = {
+        "error": error,
+        "environment": environment,
+        "seconds": seconds,
+        "label": studio.view.finetune_label.text,
+        "model": str(motion_tab.renderer_path),
+        "model_exists": motion_tab.renderer_path is not None and motion_tab.renderer_path.is_file(),
+        "playback_renderer": str(pb.renderer_path),
+        "lighting": pb.shading.lighting.name,
+        "view": player.main_view(),
+        "frames": [frame, player.frame],
+        "compare_shape": list(after.shape),
+        "neural_diff": _mean_diff(before[:, : half[0]], after[:, : half[1]]),
+        "reference_diff": _mean_diff(before[:, half[0] :], after[:, half[1] :]),
+        "stats": studio.view.neural_stats.text,
+        "errors": studio.errors[n_errors:],
+    }
+    studio.screenshot(out / "gui-relight.png")
+    note("saved gui-relight.png")
+    studio.view.tabs.selected_tab_index = 0
+    motion_tab.select_body("project body")  # the project's own renderer and light again
+    studio.wait_idle(timeout=180)
+    report["relight"]["restored_lighting"] = player.playback.shading.lighting.name

@@ -305,6 +305,21 @@ class StudioWindow:
         bg = gui.Button("Fine-tune to a background image...")
         bg.set_on_clicked(self._open_background_dialog)
         tab.add_child(bg)
+        row = gui.Horiz(0.3 * em)
+        self.light_combo = gui.Combobox()
+        for item in c.light_items:
+            self.light_combo.add_item(item)
+        self.light_combo.set_on_selection_changed(lambda _t, i: self._pick_light(i))
+        row.add_child(self.light_combo)
+        relight = gui.Button("Fine-tune to this light")
+        relight.horizontal_padding_em = 0.4
+        relight.set_on_clicked(c.finetune_light)
+        row.add_child(relight)
+        cancel = gui.Button("Cancel")
+        cancel.horizontal_padding_em = 0.4
+        cancel.set_on_clicked(c.cancel_finetune)
+        row.add_child(cancel)
+        tab.add_child(_label_row("light", row, em))
         self.finetune_label = gui.Label("")
         tab.add_child(self.finetune_label)
         return tab
@@ -483,11 +498,17 @@ class StudioWindow:
 
     # -- dialogs -----------------------------------------------------------------------------
 
-    def _file_dialog(self, mode, title: str, filters, on_done) -> None:
+    def _file_dialog(self, mode, title: str, filters, on_done, on_cancel=None) -> None:
         dlg = gui.FileDialog(mode, title, self.window.theme)
         for ext, label in filters:
             dlg.add_filter(ext, label)
-        dlg.set_on_cancel(self.window.close_dialog)
+
+        def cancelled() -> None:
+            self.window.close_dialog()
+            if on_cancel is not None:
+                on_cancel()
+
+        dlg.set_on_cancel(cancelled)
 
         def done(path: str) -> None:
             self.window.close_dialog()
@@ -526,6 +547,22 @@ class StudioWindow:
             "Background image",
             [(".png .jpg .jpeg", "images")],
             self.studio.motion_tab.finetune_background,
+        )
+
+    def _pick_light(self, index: int) -> None:
+        """The light picker: a preset or an environment image picked before, or the last
+        item, a file dialog for a new environment image (cancelled: the choice stays)."""
+        c = self.studio.motion_tab
+        spec = c.light_specs[index]
+        if spec is not None:
+            c.set_light(spec)
+            return
+        self._file_dialog(
+            gui.FileDialog.OPEN,
+            "Environment image (equirectangular)",
+            [(".hdr .exr .png .jpg .jpeg", "environment images"), ("", "all files")],
+            c.set_light,
+            on_cancel=c.fill_light_list,
         )
 
     def _save_dialog(self, what: str, ext: str, on_done) -> None:

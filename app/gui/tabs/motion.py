@@ -1,22 +1,32 @@
 """The Motion tab's controller: open a project (its window settings, garment and trained
 networks), pick a motion (a project motion, a procedural kind or a BVH file) and predict its
-proxy on the ``playback`` worker, pick the body to play on, fine-tune to a body shape or a
-background image (a job on the Pipeline tab's runner)."""
+proxy on the ``playback`` worker, pick the body to play on, fine-tune to a body shape, a
+background image or a light (a job on the Pipeline tab's runner). A relit model plays under its
+light, beside the reference rendered under the same light."""
 
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from app.gui.model import load_settings, unique_edges
+from app.gui.model import Cancelled, format_seconds, load_settings, unique_edges
 from app.gui.part import Part
 from core.compositing import load_image
 from core.errors import InputError
+from core.lighting import PRESETS, load_lighting
 from core.mesh import load_mesh
 from core.project import Project
-from pipeline.finetune import finetune_background_images, finetune_body_shape
+from pipeline.finetune import (
+    BACKDROP_FILE,
+    RELIGHT_STEPS,
+    finetune_background_images,
+    finetune_body_shape,
+    finetune_lighting,
+    saved_lighting,
+)
 from pipeline.playback import Playback, load_motion_for
 
 #: Procedural kinds offered in the motion list (``core.motion.procedural.PROCEDURAL_KINDS``;
@@ -25,6 +35,10 @@ PROCEDURAL = (
     "dance", "twirl", "walk", "circle-walk", "idle", "jump", "broad-jump", "run", "squat", "kick",
     "kneel",
 )  # fmt: skip
+#: The light picker's last item: it opens a file dialog for an environment image.
+ENVIRONMENT_ITEM = "environment image..."
+#: The name of the relighting job (on the Pipeline tab's runner).
+RELIGHT_JOB = "fine-tune light"
 
 
 class MotionTab(Part):
@@ -37,6 +51,10 @@ class MotionTab(Part):
         self.body_items: list[str] = []
         self.playback_root: Path | None = None
         self.renderer_path: Path | None = None
+        #: The light "Fine-tune to this light" uses: a preset's name or an environment image.
+        self.light_spec = next(iter(PRESETS))
+        self.environments: list[str] = []  # environment images picked so far
+        self.relighting = False  # a relighting job runs
 
     def apply_settings(self) -> None:
         """Put the settings into the tab's widgets."""
@@ -103,10 +121,16 @@ class MotionTab(Part):
             combo.add_item(name)
 
     def open_playback(
-        self, root: Path, renderer_path: Path | None = None, backdrop=None, motion=None
+        self,
+        root: Path,
+        renderer_path: Path | None = None,
+        backdrop=None,
+        motion=None,
+        lighting=None,
     ) -> None:
         """Load ``root``'s trained networks (a project or a fine-tuned sub-project; another
-        renderer file, a backdrop image) on the playback worker, then its motion."""
+        renderer file, a backdrop image, the light of the body and the reference: a
+        :class:`core.lighting.Lighting`) on the playback worker, then its motion."""
         studio, player = self.studio, self.studio.player
         self.playback_root = root
         self.renderer_path = renderer_path
@@ -121,6 +145,8 @@ class MotionTab(Part):
             pb = Playback(root, renderer_path=renderer_path, device=device)
             if backdrop is not None:
                 pb.set_backdrop(backdrop)
+            if lighting is not None:
+                pb.shading = replace(pb.shading, lighting=lighting)
             player.playback = pb
             return pb.has_renderer(), device == "cuda"
 
@@ -246,3 +272,106 @@ class MotionTab(Part):
         studio.pipeline_tab.start_job(
             "fine-tune background", [("fine-tune background", run)], after=after
         )
+
+    # ------------------------------------------------------------------ light
+
+    @property
+    def light_specs(self) -> list[str | None]:
+        """What each item of the light picker stands for: a preset, an environment image
+        picked before, and None for :data:`ENVIRONMENT_ITEM` (a file dialog)."""
+        return [*PRESETS, *self.environments, None]
+
+    @property
+    def light_items(self) -> list[str]:
+        """The light picker's items (:attr:`light_specs` as shown)."""
+        return [*PRESETS, *(Path(p).name for p in self.environments), ENVIRONMENT_ITEM]
+
+    def fill_light_list(self) -> None:
+        """Put :attr:`light_items` into the picker, the chosen light selected."""
+        combo = self.view.light_combo
+        combo.clear_items()
+        for item in self.light_items:
+            combo.add_item(item)
+        combo.selected_index = self.light_specs.index(self.light_spec)
+
+    def set_light(self, spec: str | os.PathLike) -> None:
+        """Choose the light to fine-tune to: a preset's name (:data:`core.lighting.PRESETS`)
+        or an environment image (equirectangular .hdr, .exr, .png, .jpg), read on the plots
+        worker first (a bad one is an error and the choice stays as it was)."""
+        studio, spec = self.studio, str(spec)
+
+        def done(lighting) -> None:
+            if spec not in PRESETS and spec not in self.environments:
+                self.environments.append(spec)
+            self.light_spec = spec
+            self.fill_light_list()
+            self.view.finetune_label.text = f"light: {lighting.name}"
+
+        def failed(exc: BaseException) -> None:
+            self.fill_light_list()
+            studio.show_error(exc)
+
+        studio.misc_worker.submit(lambda: load_lighting(spec), done, failed, key="light")
+
+    def finetune_light(self, steps: int = RELIGHT_STEPS) -> None:
+        """Fine-tune the project's renderer to the chosen light
+        (:func:`pipeline.finetune.finetune_lighting`, into ``PROJECT/finetune/light-NAME/``),
+        step by step on the label; Cancel stops it at the next step (a restart resumes). Then
+        play the relit model under its light, beside the reference rendered under it."""
+        studio = self.studio
+        if studio.project is None:
+            studio.show_error(InputError("open a trained project first"))
+            return
+        if studio.pipeline_tab.job_running:
+            studio.show_error(InputError("a job is already running: cancel it first"))
+            return
+        root, spec, label = studio.project, self.light_spec, self.view.finetune_label
+        name = Path(spec).name
+        label.text = f"relight to {name}: starting"
+        self.relighting = True
+
+        def shown_step(i: int) -> None:
+            left = studio.pipeline_tab.job_eta.seconds_left()
+            label.text = f"relight to {name}: step {i} of {steps}" + (
+                "" if left is None else f", about {format_seconds(left)} left"
+            )
+
+        def run(project, config, log, progress):
+            def step(i: int, _losses) -> None:
+                progress(i, steps)  # a cancelled job raises Cancelled here: the run stops
+                studio.post(lambda: shown_step(i))
+
+            result = finetune_lighting(
+                root, spec, steps=steps, callback=step, log=log, progress=False
+            )
+            backdrop = result.model_path.parent / BACKDROP_FILE
+            image = load_image(backdrop) if backdrop.is_file() else None
+            return result, saved_lighting(result.model_path), image
+
+        def after(out) -> None:
+            result, lighting, image = out
+            self.relighting = False
+            label.text = f"relit model ({lighting.name}): {result.model_path}"
+            player = studio.player
+            player.pause()
+            if player.mode == "play" and player.num_frames:  # keep the frame and the camera
+                self.set(camera=player.current_pose().as_dict(), frame=int(player.frame))
+            self.set(view_mode="compare")  # the relit render beside the reference
+            self.open_playback(
+                root, renderer_path=result.model_path, backdrop=image, lighting=lighting
+            )
+
+        def failed(exc: BaseException) -> None:
+            self.relighting = False
+            stopped = "cancelled" if isinstance(exc, Cancelled) else "failed"
+            label.text = f"relight to {name}: {stopped} (a restart resumes)"
+
+        studio.pipeline_tab.start_job(
+            RELIGHT_JOB, [(RELIGHT_JOB, run)], after=after, on_error=failed
+        )
+
+    def cancel_finetune(self) -> None:
+        """Stop the relighting at its next step."""
+        if self.relighting:
+            self.studio.pipeline_tab.cancel()
+            self.view.finetune_label.text = "relight: cancelling ..."

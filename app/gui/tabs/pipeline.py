@@ -65,10 +65,13 @@ class PipelineTab(Part):
         trains = which in ("joint2coarse", "renderer", "all", "setup")
         self.start_job(which, [(j.label, j.run) for j in jobs], refresh=trains)
 
-    def start_job(self, name: str, steps: list, refresh: bool = False, after=None) -> None:
+    def start_job(
+        self, name: str, steps: list, refresh: bool = False, after=None, on_error=None
+    ) -> None:
         """Run ``steps`` ((label, run(project, config, log, progress)), ...) in order on the
         jobs worker. Then ``after(result of the last step)`` on the main thread, or with
-        ``refresh`` the body list and the project's networks are reloaded."""
+        ``refresh`` the body list and the project's networks are reloaded; when a step fails
+        or is cancelled, ``on_error(exc)`` before the error is shown."""
         studio = self.studio
         project = Project(studio.project)
         config = self.job_config
@@ -111,6 +114,8 @@ class PipelineTab(Part):
             self.update_widgets(
                 final=f"{name}: cancelled" if isinstance(exc, Cancelled) else f"{name}: failed"
             )
+            if on_error is not None:
+                on_error(exc)
             studio.show_error(exc)
 
         studio.job_worker.submit(job, done, failed, key="job")
