@@ -120,6 +120,8 @@ class PipelineConfig:
     torch_threads: int = 1
     """CPU threads torch uses for training and inference: one, since more spin against anything
     running beside them on a small machine (docs/decisions.md, "torch_threads")."""
+    lighting: str = "studio"
+    """The ground truth's light: a preset (``core.lighting.PRESETS``), an image or a JSON."""
     raster_threads: int = 1
     """Threads of the stages' ray casts (``core.raster.RasterConfig.threads``, 0: every core),
     one as two stages run side by side; same images (docs/decisions.md, "raster_threads")."""
@@ -222,7 +224,6 @@ PRESETS: dict[str, PipelineConfig] = {
         renderer_overrides={"w_fm": 0.0, "w_gan": 0.0},
         renderer_source="joint2coarse",
         baselines=("pix2pix", "dnr"),
-        # A walk, a circle walk, a jump ("joint2coarse_extra") and the library.
         joint2coarse_extra=(
             MotionSpec("walk", "walk", 300, seed=3),
             MotionSpec("circle-walk", "circle-walk", 300, seed=4),
@@ -232,8 +233,7 @@ PRESETS: dict[str, PipelineConfig] = {
         joint2coarse_validation=LIBRARY_VALIDATION,
         # The renderers' validation split: real capture, like the test clip a user brings.
         renderer_validation="val-cmu-01_03",
-        # Our model drives the project, the paper's beside it on the same splits (report:
-        # compare). Each override's figures are under its key in docs/decisions.md.
+        # Ours drives the project, the paper's beside it (compare); figures: docs/decisions.md.
         joint2coarse_overrides={
             "model": "ours",  # ahead of the paper's on the validation motions
             "residual_widths": [128, 128],  # narrower and longer than the defaults

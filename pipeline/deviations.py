@@ -268,7 +268,7 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
         "inside the body pushed out of the simulation's capsules where asked (`dng predict "
         "proxy --push-out`)",
         "the network stretches the proxy's edges many times more than the cloth does "
-        "(docs/decisions.md, \"Joint2Coarse's prediction strain-limited\"); the report gives "
+        '(docs/decisions.md, "Joint2Coarse\'s prediction strain-limited"); the report gives '
         "stretch and penetration against the simulation's",
     )
     sizes, channels = PAPER_TEXTURE

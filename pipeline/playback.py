@@ -40,10 +40,10 @@ from core.motion.mapping import canonical_positions
 from core.motion.procedural import PROCEDURAL_KINDS, make_motion
 from core.motion.retarget import retarget
 from core.project import Project
-from core.shading import ShadingConfig, render_background, render_views
+from core.shading import render_background, render_views
 from core.sim import load_cache
 from pipeline.config import project_config
-from pipeline.stages.dataset import dataset_rig
+from pipeline.stages.dataset import dataset_rig, project_shading
 from pipeline.stages.motions import load_project_motion
 
 #: Frames of a procedural motion when no count is given.
@@ -163,7 +163,7 @@ class Playback:
         self.project = Project(root)
         self.config = project_config(self.project)
         self.device = device
-        self.shading = ShadingConfig() if shading is None else shading
+        self.shading = project_shading(self.config, 0) if shading is None else shading
         self.body = make_body(self.config.body)
         self.body_faces = self.body.faces
         proxy_file = self.project.path("proxy", "proxy.obj")

@@ -530,3 +530,33 @@ def test_the_proxy_solver_setting_reaches_the_proxy_simulation(smoke, tmp_path):
     assert cache.params["sim"]["implicit_norm"] == "rms" and np.isfinite(cache.positions).all()
     report = json.loads((copy / "sim" / "twirl-proxy" / "report.json").read_text())
     assert report["steps_per_frame"] == 2 and report["strain_max"] < report["strain_limit"] * 1.5
+
+
+def test_a_project_under_another_light_renders_its_data_set_under_it(smoke, tmp_path):
+    """``PipelineConfig.lighting``: the data set is rendered again under the project's light,
+    and the studio's light leaves a project's stages as they were."""
+    import shutil
+    from dataclasses import replace
+
+    from PIL import Image
+
+    from core.lighting import PRESETS as LIGHTS
+    from pipeline.stages.dataset import lighting_params, project_shading, stage_dataset
+
+    out, _ = smoke
+    copy = tmp_path / "project"
+    keep = ("motions", "garment", "proxy", "sim", "dataset", "embedding", "project.json")
+    shutil.copytree(
+        out, copy, ignore=lambda d, names: [n for n in names if d == str(out) and n not in keep]
+    )
+    config = project_config(Project(copy))
+    assert config.lighting == "studio" and lighting_params(config) == {}
+    assert project_shading(config).lighting == LIGHTS["studio"]
+    first = sorted((copy / "dataset" / "samples").glob("*_image.png"))[0]
+    studio = np.asarray(Image.open(first), dtype=int)
+    stage_dataset(Project(copy), replace(config, lighting="overcast"))
+    overcast = np.asarray(Image.open(first), dtype=int)
+    assert np.abs(overcast - studio).sum(-1).mean() > 10
+    bad = replace(config, lighting=str(tmp_path / "none.hdr"))
+    with pytest.raises(InputError, match="none.hdr"):
+        stage_dataset(Project(copy), bad)

@@ -7,6 +7,8 @@ import dataclasses
 from pathlib import Path
 
 from core.errors import InputError
+from core.lighting import PRESETS as PRESETS_OF_LIGHT
+from core.lighting import load_lighting
 from core.mesh import load_mesh
 from pipeline.config import preset
 from pipeline.demo import run_demo
@@ -39,6 +41,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "PLY, GLB, OFF, STL) in metres, Y up, dressed on the mannequin (`dng body make`); "
         "default: the preset's multi-layer skirt",
     )  # fmt: skip
+    p.add_argument(
+        "--lighting", default=None, metavar="LIGHT",
+        help="the light the data set, test sets and videos are rendered under: a preset "
+        f"({', '.join(PRESETS_OF_LIGHT)}), an environment image (.hdr, .exr, .png, .jpg) or a "
+        "lighting.json; default: studio",
+    )  # fmt: skip
     p.set_defaults(handler=run)
 
 
@@ -47,6 +55,14 @@ def run(args: argparse.Namespace) -> int:
     config = preset(args.preset)
     if args.garment is not None:
         config = dataclasses.replace(config, garment=_garment(args.garment))
+    if args.lighting is not None:
+        load_lighting(args.lighting)  # a bad light is refused now, not minutes into the run
+        light = (
+            args.lighting
+            if args.lighting in PRESETS_OF_LIGHT
+            else str(Path(args.lighting).resolve())
+        )
+        config = dataclasses.replace(config, lighting=light)
     run_demo(config, args.out, preset_name=args.preset, force=args.force)
     return 0
 

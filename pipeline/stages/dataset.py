@@ -12,6 +12,7 @@ from core.body.mannequin import make_body
 from core.body.skinning import pose_body
 from core.camera import CameraRigConfig, camera_to_dict, random_cameras
 from core.fileio import write_json
+from core.lighting import load_lighting
 from core.mesh import Mesh, load_mesh
 from core.project import Project, fingerprint
 from core.shading import ShadingConfig, render_views, write_png
@@ -28,6 +29,21 @@ INDEX_VERSION = 2
 TEST_CAMERAS, VALIDATION_CAMERAS = 1, 2
 
 # ---------------------------------------------------------------------------------- data set
+
+
+def project_shading(config: PipelineConfig, threads: int | None = None) -> ShadingConfig:
+    """How the project's ground truth is rendered: its light (:attr:`PipelineConfig.lighting`),
+    ray casts on ``threads`` (default: ``config.raster_threads``)."""
+    threads = config.raster_threads if threads is None else threads
+    return ShadingConfig(lighting=load_lighting(config.lighting), threads=threads)
+
+
+def lighting_params(config: PipelineConfig) -> dict:
+    """What a rendering stage's parameters say of the light: nothing for the studio's (so a
+    project made before lights could be chosen keeps its stages), else the light itself."""
+    if config.lighting == "studio":
+        return {}
+    return {"lighting": load_lighting(config.lighting).to_dict()}
 
 
 def dataset_rig(config: PipelineConfig, garment_vertices: np.ndarray):
@@ -72,6 +88,7 @@ def stage_dataset(project: Project, config: PipelineConfig, log: Log = quiet) ->
         "size": config.image_size,
         "seed": config.seed,
         "body": asdict(config.body),
+        **lighting_params(config),
     }
 
     def work(out: Path) -> list[str]:
@@ -127,7 +144,7 @@ def _render_samples(
     # Render frame by frame: each frame is seen by the cameras of samples t-1, t, t+1.
     strips: dict[tuple[int, int], list] = {key: [None] * 3 for key in cams}
     frames = sorted({t + d for t in centres for d in (-1, 0, 1)})
-    shading = ShadingConfig(threads=config.raster_threads)
+    shading = project_shading(config)
     for f in tqdm(frames, desc=desc, unit="frame", leave=False):
         wanted = [(t, k, f - t + 1) for (t, k) in cams if abs(f - t) <= 1]
         garment = Mesh(cache.positions[f], cache.faces)
@@ -181,6 +198,7 @@ def stage_testset(
         "seed": config.seed,
         "body": asdict(config.body),
         **({"cameras": stream} if validation else {}),
+        **lighting_params(config),
     }
 
     def work(out: Path) -> list[str]:

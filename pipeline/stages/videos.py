@@ -10,9 +10,15 @@ import numpy as np
 
 from core.fileio import write_json
 from core.project import Project
-from core.shading import ShadingConfig, contact_sheet
-from pipeline.config import Log, PipelineConfig, available_test_motions, quiet
+from core.shading import contact_sheet
+from pipeline.config import (
+    Log,
+    PipelineConfig,
+    available_test_motions,
+    quiet,
+)
 from pipeline.playback import FrameWriter, Playback, load_motion_for
+from pipeline.stages.dataset import lighting_params, project_shading
 
 
 def stage_videos(project: Project, config: PipelineConfig, log: Log = quiet) -> dict:
@@ -27,11 +33,11 @@ def stage_videos(project: Project, config: PipelineConfig, log: Log = quiet) -> 
         project.path("joint2coarse", "joint2coarse.pt"),
     ]
     inputs += [project.path(f"sim/{n}-target", "cache.npz") for n in tests]
-    params = {"tests": tests, "size": config.image_size}
+    params = {"tests": tests, "size": config.image_size, **lighting_params(config)}
 
     def work(out: Path) -> list[str]:
         torch.set_num_threads(config.torch_threads)
-        pb = Playback(project.root, shading=ShadingConfig(threads=config.raster_threads))
+        pb = Playback(project.root, shading=project_shading(config))
         report = {}
         for name in tests:
             pb.set_motion(load_motion_for(project, name))  # a project motion: has its truth
