@@ -321,3 +321,24 @@ def test_bench_render(tmp_path, dng):
     assert row["size"] == 32 and row["fps"] > 0 and row["frame_ms"] > row["network_ms"] > 0
     assert len(table["load_average_before"]) == 3
     assert (tmp_path / "render.json").is_file() and (tmp_path / "render.png").is_file()
+
+
+def test_relight_benchmark_prints_its_figures(smoke_project, tmp_path):
+    from tests.conftest import run_benchmark
+
+    r = run_benchmark(
+        "relight.py", smoke_project, "--lights", "overcast", "--steps", 1,
+        "--scratch-steps", 2, "--out", tmp_path, "--json",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout.strip().splitlines()[-1])
+    assert "--lights overcast" in data["command"]
+    (row,) = data["rows"]
+    assert row["light"] == "overcast" and row["held_out"] == "val-walk"
+    for model in ("before", "after", "scratch"):
+        assert 0 < row[f"{model}_mse"] < 1 and -1 <= row[f"{model}_ssim"] <= 1
+        assert 0 <= row[f"{model}_colour"] <= 3**0.5
+    assert row["after_seconds"] > 0 and row["scratch_seconds"] > 0
+    assert (tmp_path / "relight-overcast.png").is_file()
+    r = run_benchmark("relight.py", smoke_project, "--lights", "dusk")
+    assert r.returncode == 2 and "unknown light preset" in r.stderr
