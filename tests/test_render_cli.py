@@ -342,3 +342,26 @@ def test_relight_benchmark_prints_its_figures(smoke_project, tmp_path):
     assert (tmp_path / "relight-overcast.png").is_file()
     r = run_benchmark("relight.py", smoke_project, "--lights", "dusk")
     assert r.returncode == 2 and "unknown light preset" in r.stderr
+
+
+@pytest.mark.slow
+def test_body_finetune_benchmark_prints_its_figures(smoke_project):
+    from tests.conftest import run_benchmark
+
+    r = run_benchmark(
+        "body_finetune.py", smoke_project, "--shape", "bench-short", "height=1.6",
+        "--fractions", 0.2, 0.5, "--json",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout.strip().splitlines()[-1])
+    assert (
+        data["shape"]["height"] == pytest.approx(1.6) and "--shape bench-short" in data["command"]
+    )
+    names = [row["name"] for row in data["rows"]]
+    assert names == ["before (the project's)", "fine-tuned", "fine-tuned", "from scratch"]
+    assert [row["steps"] for row in data["rows"]] == [0, 6, 15, 30]  # the smoke preset's 30
+    assert all(0 < row["mse"] < 1 for row in data["rows"])
+    reached = data["fraction_reached"]
+    assert reached is None or reached in (0.2, 0.5)
+    r = run_benchmark("body_finetune.py", smoke_project, "--shape", "x", "neck=3")
+    assert r.returncode == 2 and "neck" in r.stderr
