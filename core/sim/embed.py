@@ -452,5 +452,3 @@ def keep_out_of_body(
         hit = np.flatnonzero(moved)
         x[hit] = push_out_of_capsules(x[hit], ends, radii, margin)
     return x
-
-

@@ -88,7 +88,9 @@ def predict_proxy(
     """
     check_joint_inputs(joints, root_rotations, source)
     if stretch is not None and len(stretch.edges) and stretch.edges.max() >= net.n_vertices:
-        raise InputError(f"the stretch limit's mesh is not the model's {net.n_vertices}-vertex proxy")
+        raise InputError(
+            f"the stretch limit's mesh is not the model's {net.n_vertices}-vertex proxy"
+        )
     if (capsules is None) != (radii is None):
         raise InputError("capsules and radii go together", source or None)
     cfg = net.config
