@@ -376,11 +376,12 @@ def example_samples(n_samples: int, examples: int) -> list[int]:
 def lighting_backdrop(spec, lighting: Lighting, background, camera) -> np.ndarray | None:
     """The backdrop of a relit view: the ``background`` image when given; else, for an
     environment image, what the camera sees of it (:func:`core.lighting.environment_view`);
-    else None (the clear studio colour)."""
+    else None (the clear studio colour; a lighting JSON keeps no image to show)."""
     if background is not None:
         return load_image(background)
-    if lighting.environment:
-        return environment_view(read_environment(spec), camera)
+    image = Path(str(spec))
+    if lighting.environment and image.is_file() and image.suffix.lower() != ".json":
+        return environment_view(read_environment(image), camera)
     return None
 
 

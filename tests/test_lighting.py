@@ -131,3 +131,23 @@ def test_presets_and_files_round_trip(tmp_path):
     grey = {name: _centre(lit) for name, lit in PRESETS.items()}
     assert grey["low-sun"][0] > grey["low-sun"][2] + 40  # warm
     assert grey["overcast"][2] > grey["overcast"][0]  # cold
+
+
+def test_a_relit_views_backdrop(tmp_path):
+    """An environment image is its own backdrop; its light saved as JSON, or a preset, is none."""
+    import cv2
+
+    from pipeline.finetune import lighting_backdrop
+
+    radiance = np.zeros((16, 32, 3), np.float32)
+    radiance[:, 14:18] = 1.0
+    cv2.imwrite(str(tmp_path / "sky.hdr"), radiance[..., ::-1])
+    lit = load_lighting(tmp_path / "sky.hdr")
+    view = lighting_backdrop(tmp_path / "sky.hdr", lit, None, CAM)
+    assert view.shape == (32, 32, 3) and view[16, 16].min() == 255
+    (tmp_path / "sky.json").write_text(json.dumps(lit.to_dict()))
+    assert (
+        lighting_backdrop(tmp_path / "sky.json", load_lighting(tmp_path / "sky.json"), None, CAM)
+        is None
+    )
+    assert lighting_backdrop("overcast", PRESETS["overcast"], None, CAM) is None
