@@ -51,7 +51,6 @@ from core.errors import InputError
 from core.fileio import atomic_path, write_json
 from core.lighting import Lighting, environment_view, load_lighting, read_environment
 from core.mesh import Mesh
-from core.motion.load import load_motion
 from core.project import Project
 from core.shading import ShadingConfig, contact_sheet, render_views, write_png
 from core.sim import load_cache
@@ -147,6 +146,8 @@ class BackdropDataset:
 def _scene(base):
     """The body (a :class:`core.mesh.Mesh`-like record), its posed vertices (T, V, 3) and the
     detailed target's cache of the motion a data set (or test set) ``base`` shows."""
+    from core.motion.load import load_motion  # scipy: not on the torch-only path's machine
+
     root = Path(base.root)
     index = json.loads((Path(base.folder) / "samples.json").read_text())
     motion_name = index["motion"]
