@@ -267,6 +267,10 @@ def test_finetune_lighting_bad_inputs_write_nothing(smoke_project, tmp_path, dng
     assert code == 2 and "no.png" in err
     code, _, err = dng("finetune", smoke_project)
     assert code == 2 and "--lighting" in err
+    code, _, err = dng(
+        "finetune", smoke_project, "--body-shape", "height=1.8", "--background", "a.png"
+    )
+    assert code == 2 and "one at a time" in err
     after = set(root.iterdir()) if root.is_dir() else set()
     assert after == before  # no half-written model
 

@@ -87,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.body_shape or args.background or args.lighting):
         raise InputError("say what to fine-tune to: --body-shape, --background or --lighting")
+    if args.body_shape and args.background:
+        raise InputError("--body-shape and --background are two fine-tunes: run them one at a time")
     if args.steps is not None and args.steps < 1:
         raise InputError(f"--steps must be >= 1, got {args.steps}")
     torch.set_num_threads(1)  # one thread is the robust choice beside other work (see pipeline)
