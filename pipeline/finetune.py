@@ -176,9 +176,13 @@ class LitDataset:
     backdrop : (H, W, 3) uint8 or None
     indices : base samples to take (default: all of them)
     threads : ray-casting threads (0: every core)
+    targets : base sample -> (H, W, 3) uint8, a render of frame t made elsewhere (a user's
+        tool, under the same light) that replaces the garment on the body at frame t
     """
 
-    def __init__(self, base, lighting: Lighting, backdrop=None, indices=None, threads: int = 0):
+    def __init__(
+        self, base, lighting: Lighting, backdrop=None, indices=None, threads: int = 0, targets=None
+    ):
         self.base = base
         self.indices = list(range(len(base))) if indices is None else [int(i) for i in indices]
         if not self.indices:
@@ -190,6 +194,7 @@ class LitDataset:
         self.backdrop = None if backdrop is None else np.asarray(backdrop, np.uint8)
         self.body, self.body_frames, self.target = _scene(base)
         self.samples = [base.samples[i] for i in self.indices]
+        self.targets = {} if targets is None else dict(targets)
         self._renders: dict[int, dict] = {}
 
     def __len__(self) -> int:
@@ -235,6 +240,9 @@ class LitDataset:
             out["target"].append(image.transpose(2, 0, 1).astype(np.float32) / 255)
             out["background"].append(background.transpose(2, 0, 1).astype(np.float32) / 255)
             out["target_mask"].append(gt.coverage[None].astype(np.float32))
+        given = self.targets.get(self.indices[i])
+        if given is not None:
+            out["target"][1] = np.asarray(given).transpose(2, 0, 1).astype(np.float32) / 255
         self._renders[i] = {key: np.stack(v) for key, v in out.items()}
         return self._renders[i]
 
@@ -374,6 +382,32 @@ def example_samples(n_samples: int, examples: int) -> list[int]:
     return [int((k + 0.5) * n_samples / examples) for k in range(examples)]
 
 
+def read_examples(items: Sequence[str], n_samples: int, size: int) -> dict[int, np.ndarray]:
+    """A user's example renders, ``SAMPLE=IMAGE`` each: the garment on the body at data-set
+    sample SAMPLE's frame t from its camera (``dataset/samples.json``), ``size`` pixels
+    square. InputError naming the item or the file when it is not one."""
+    out: dict[int, np.ndarray] = {}
+    if not items:
+        raise InputError("give at least one example")
+    for item in items:
+        index, sep, path = str(item).partition("=")
+        if not sep or not index.strip().isdigit() or not path:
+            raise InputError(
+                f"an example is SAMPLE=IMAGE (a data-set sample's index), got {item!r}"
+            )
+        i = int(index)
+        if i >= n_samples:
+            raise InputError(f"example {item!r}: the data set has samples 0 to {n_samples - 1}")
+        image = load_image(path)
+        if image.shape[:2] != (size, size):
+            h, w = image.shape[:2]
+            raise InputError(
+                f"the example is {w} x {h}; the project's images are {size} x {size}", path
+            )
+        out[i] = image
+    return out
+
+
 def lighting_backdrop(spec, lighting: Lighting, background, camera) -> np.ndarray | None:
     """The backdrop of a relit view: the ``background`` image when given; else, for an
     environment image, what the camera sees of it (:func:`core.lighting.environment_view`);
@@ -398,7 +432,7 @@ def finetune_lighting(
     name: str | None = None,
     *,
     background: str | os.PathLike | None = None,
-    examples: int = RELIGHT_EXAMPLES,
+    examples: int | Sequence[str] = RELIGHT_EXAMPLES,
     steps: int = RELIGHT_STEPS,
     renderer_path: str | os.PathLike | None = None,
     device: str = "cpu",
@@ -415,7 +449,9 @@ def finetune_lighting(
         (:func:`core.lighting.load_lighting`)
     name : the result's folder is ``PROJECT/finetune/light-NAME/`` (default: the light's name)
     background : a backdrop image (default: an environment image's own view, or none)
-    examples : data-set samples rendered under the light (:func:`example_samples`)
+    examples : how many data-set samples to render under the light (:func:`example_samples`),
+        or a user's own renders under it, ``SAMPLE=IMAGE`` each (:func:`read_examples`): the
+        body alone is then rendered under ``lighting`` here, as the renderer's input
     steps : fine-tuning steps
     callback : called after each step with (step, losses) (raising stops the run)
 
@@ -432,10 +468,15 @@ def finetune_lighting(
     lit = load_lighting(lighting)  # a bad light or image fails before any work
     model = parent_renderer(root, renderer_path)
     base = GarmentDataset(root, source=project_config(Project(root)).renderer_source)
-    indices = example_samples(len(base), examples)
+    given = None
+    if isinstance(examples, int):
+        indices = example_samples(len(base), examples)
+    else:
+        given = read_examples(examples, len(base), base.samples[0][2].width)
+        indices = sorted(given)
     backdrop = lighting_backdrop(lighting, lit, background, base.samples[0][2])
     out = root / FINETUNE_DIR / f"light-{check_name(name or Path(lit.name).stem)}"
-    data = LitDataset(base, lit, backdrop, indices)
+    data = LitDataset(base, lit, backdrop, indices, targets=given)
     log(f"relighting {model} to {lit.name}: {len(indices)} example renders, {steps} steps")
     trace = _LossTrace()
 
@@ -461,6 +502,7 @@ def finetune_lighting(
             "lighting": str(lighting),
             "background": None if background is None else str(background),
             "examples": indices,
+            "example_images": None if given is None else [str(e) for e in examples],
             "steps": result.steps,
         },
     )

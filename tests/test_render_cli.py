@@ -247,6 +247,36 @@ def test_finetune_lighting_from_an_environment_image(smoke_project, tmp_path, dn
     assert backdrop[0, 0, 2] > backdrop[0, 0, 0] and backdrop[-1, 0].max() == 0  # its own view
 
 
+def test_finetune_lighting_from_your_own_renders(smoke_project, tmp_path, dng):
+    """``--examples SAMPLE=IMG``: a user's renders replace the garment on the body at frame t;
+    the body alone is rendered under the light given."""
+    from PIL import Image
+
+    from core.lighting import PRESETS
+    from pipeline.finetune import LitDataset, read_examples
+    from training.dataset import GarmentDataset
+
+    blue = np.zeros((64, 64, 3), np.uint8)
+    blue[..., 2] = 200
+    Image.fromarray(blue).save(tmp_path / "a.png")
+    Image.fromarray(blue[..., ::-1].copy()).save(tmp_path / "b.png")
+    items = [f"0={tmp_path / 'a.png'}", f"3={tmp_path / 'b.png'}"]
+    code, out, err = dng(
+        "finetune", smoke_project, "--lighting", "overcast", "--examples", *items,
+        "--steps", 1, "--name", "mine",
+    )  # fmt: skip
+    assert code == 0, err
+    folder = smoke_project / "finetune" / "light-mine"
+    record = json.loads((folder / "finetune.json").read_text())
+    assert record["examples"] == [0, 3] and len(record["example_images"]) == 2
+    base = GarmentDataset(smoke_project, source="joint2coarse")
+    given = read_examples(items, len(base), 64)
+    data = LitDataset(base, PRESETS["overcast"], indices=[0, 3], targets=given)
+    sample = data[0]
+    assert np.allclose(sample["target"][1].numpy(), blue.transpose(2, 0, 1) / 255)
+    assert not np.allclose(sample["target"][0].numpy(), blue.transpose(2, 0, 1) / 255)
+
+
 def test_finetune_lighting_bad_inputs_write_nothing(smoke_project, tmp_path, dng):
     root = smoke_project / "finetune"
     before = set(root.iterdir()) if root.is_dir() else set()
@@ -265,6 +295,20 @@ def test_finetune_lighting_bad_inputs_write_nothing(smoke_project, tmp_path, dng
         "finetune", smoke_project, "--lighting", "overcast", "--background", tmp_path / "no.png"
     )
     assert code == 2 and "no.png" in err
+    from PIL import Image
+
+    small = tmp_path / "small.png"
+    Image.new("RGB", (32, 40)).save(small)
+    code, _, err = dng(
+        "finetune", smoke_project, "--lighting", "low-sun", "--examples", f"0={small}"
+    )
+    assert code == 2 and str(small) in err and "32 x 40" in err
+    code, _, err = dng("finetune", smoke_project, "--lighting", "low-sun", "--examples", small)
+    assert code == 2 and "SAMPLE=IMAGE" in err
+    code, _, err = dng(
+        "finetune", smoke_project, "--lighting", "low-sun", "--examples", "99999=x.png"
+    )
+    assert code == 2 and "samples 0 to" in err
     code, _, err = dng("finetune", smoke_project)
     assert code == 2 and "--lighting" in err
     code, _, err = dng(

@@ -57,10 +57,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--examples",
-        type=int,
-        default=RELIGHT_EXAMPLES,
-        metavar="N",
-        help=f"--lighting: data-set samples rendered under the light (default {RELIGHT_EXAMPLES})",
+        nargs="+",
+        default=[str(RELIGHT_EXAMPLES)],
+        metavar="N|SAMPLE=IMG",
+        help=f"--lighting: how many data-set samples to render under the light (default "
+        f"{RELIGHT_EXAMPLES}), or your own renders under it, SAMPLE=IMG each: the garment on the "
+        "body at data-set sample SAMPLE's frame t from its camera (dataset/samples.json)",
     )
     p.add_argument("--steps", type=int, default=None, help="fine-tuning steps (default: see above)")
     p.add_argument(
@@ -104,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             args.lighting,
             args.name,
             background=None if args.background is None else args.background[0],
-            examples=args.examples,
+            examples=_examples(args.examples),
             steps=RELIGHT_STEPS if args.steps is None else args.steps,
             renderer_path=args.renderer,
             device=args.device,
@@ -148,3 +150,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"play it: dng render {result.out_dir} --motion ...")
     return 0
+
+
+def _examples(items: list[str]) -> int | list[str]:
+    """``--examples``: a count alone, or ``SAMPLE=IMG`` items."""
+    if len(items) == 1 and items[0].lstrip("-").isdigit():
+        return int(items[0])
+    return items
