@@ -730,7 +730,7 @@ def _motion_tab_without_window(project: Path):
     label = lambda: SimpleNamespace(text="")  # noqa: E731
     view = SimpleNamespace(
         finetune_label=label(), job_label=label(), log_label=label(), status=label(),
-        progress=SimpleNamespace(value=0.0), light_combo=_Combo(),
+        progress=SimpleNamespace(value=0.0), light_combo=_Combo(), body_combo=_Combo(),
     )  # fmt: skip
     posted: list = []
     errors: list = []
@@ -850,5 +850,12 @@ def test_relighting_shows_each_step_cancels_and_plays_the_relit_model(tmp_path, 
     assert root == tmp_path and kw["renderer_path"] == model
     assert kw["lighting"] == PRESETS["low-sun"] and kw["backdrop"] is None
     assert studio.settings.view_mode == "compare"  # the relit render beside the reference
+    # The relit renderer is in the "play on" list, chosen, and plays again from there.
+    assert tab.body_items == ["project body", "light-low-sun"]
+    assert studio.view.body_combo.selected_index == 1
+    tab.select_body("light-low-sun")
+    root, kw = opened[-1]
+    assert root == tmp_path and kw["renderer_path"] == model
+    assert kw["lighting"] == PRESETS["low-sun"]
     for worker in (studio.job_worker, studio.misc_worker):
         worker.stop()

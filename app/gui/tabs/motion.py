@@ -112,10 +112,13 @@ class MotionTab(Part):
         self.body_items = ["project body"]
         project = self.studio.project
         if project is not None:
+            found = project / "finetune"
             self.body_items += sorted(
-                p.name
-                for p in (project / "finetune").glob("body-*")
-                if (p / "renderer" / "renderer.pt").is_file()
+                p.name for p in found.glob("body-*") if (p / "renderer" / "renderer.pt").is_file()
+            )
+            # Relit renderers play on the project's body, under their light.
+            self.body_items += sorted(
+                p.name for p in found.glob("light-*") if (p / "renderer.pt").is_file()
             )
         for name in self.body_items:
             combo.add_item(name)
@@ -225,12 +228,27 @@ class MotionTab(Part):
         self.set(body={**self.settings.body, name: float(value)})
 
     def select_body(self, item: str) -> None:
-        """Play on the project's body or a fine-tuned body sub-project's."""
+        """Play on the project's body or a fine-tuned body sub-project's, or a relit renderer."""
         project = self.studio.project
         if project is None:
             return
+        if item.startswith("light-"):
+            self.play_relit(project / "finetune" / item / "renderer.pt")
+            return
         root = project if item == "project body" else project / "finetune" / item
         self.open_playback(root, motion=self.studio.settings.motion)
+
+    def play_relit(self, model: Path) -> None:
+        """Play a relit renderer (``PROJECT/finetune/light-NAME/renderer.pt``) on the project's
+        body, under the light and over the backdrop saved beside it."""
+        backdrop = model.parent / BACKDROP_FILE
+        self.open_playback(
+            self.studio.project,
+            renderer_path=model,
+            backdrop=load_image(backdrop) if backdrop.is_file() else None,
+            lighting=saved_lighting(model),
+            motion=self.studio.settings.motion,
+        )
 
     def finetune_body(self) -> None:
         studio = self.studio
@@ -357,6 +375,8 @@ class MotionTab(Part):
             if player.mode == "play" and player.num_frames:  # keep the frame and the camera
                 self.set(camera=player.current_pose().as_dict(), frame=int(player.frame))
             self.set(view_mode="compare")  # the relit render beside the reference
+            self.fill_body_list()  # the relit renderer can be picked again later
+            self.view.body_combo.selected_index = self.body_items.index(result.out_dir.name)
             self.open_playback(
                 root, renderer_path=result.model_path, backdrop=image, lighting=lighting
             )
