@@ -170,6 +170,21 @@ def equirect_directions(height: int, width: int) -> tuple[np.ndarray, np.ndarray
     return d, omega
 
 
+#: Rows an environment is averaged down to before its projection: bands 0 to 2 change over
+#: tens of degrees, so a 4k panorama's 8 M pixels (600 MB of basis values) add nothing.
+ENVIRONMENT_ROWS = 64
+
+
+def _shrink(radiance: np.ndarray) -> np.ndarray:
+    """An equirectangular image averaged over square blocks down to about
+    :data:`ENVIRONMENT_ROWS` rows (the last partial rows and columns dropped)."""
+    f = radiance.shape[0] // ENVIRONMENT_ROWS
+    if f < 2:
+        return radiance
+    h, w = radiance.shape[0] // f * f, radiance.shape[1] // f * f
+    return radiance[:h, :w].reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3))
+
+
 def environment_coefficients(radiance: np.ndarray) -> tuple[float, ...]:
     """An equirectangular environment's diffuse light as :attr:`Lighting.environment`.
 
@@ -187,6 +202,7 @@ def environment_coefficients(radiance: np.ndarray) -> tuple[float, ...]:
         raise InputError(f"an environment must be an (H, W, 3) image, got {r.shape}")
     if not np.isfinite(r).all() or (r < 0).any():
         raise InputError("an environment's radiance must be finite and >= 0")
+    r = _shrink(r)
     d, omega = equirect_directions(*r.shape[:2])
     y = sh_basis(d.reshape(-1, 3)) * omega.reshape(-1, 1)  # (P, 9)
     coeffs = y.T @ r.reshape(-1, 3)  # (9, 3): projection of the radiance

@@ -122,25 +122,36 @@ class BackdropDataset:
         sample = dict(self.base[i])
         t, _, camera = self.base.samples[i]
         back = self.backdrop(i, camera.width, camera.height)
-        k = self.shading.supersample
-        clear = self.shading.background
-        bf = self.body.faces
-        gf = self.target.faces
-        faces_all = np.concatenate([gf, bf + self.target.num_vertices])
-        for key in ("background", "target"):
-            frames = []
-            for j, f in enumerate((t - 1, t, t + 1)):
-                body = self.body_frames[f]
-                if key == "background":
-                    cov = surface_coverage(body, bf, camera, k)
-                else:
-                    verts = np.concatenate([self.target.positions[f], body]).astype(np.float32)
-                    cov = surface_coverage(verts, faces_all, camera, k)
-                img = (sample[key][j].numpy().transpose(1, 2, 0) * 255 + 0.5).astype(np.uint8)
-                out = recomposite(img, cov, clear, back)
-                frames.append(out.transpose(2, 0, 1).astype(np.float32) / 255)
-            sample[key] = torch.from_numpy(np.ascontiguousarray(np.stack(frames)))
+        k, clear = self.shading.supersample, self.shading.background
+        images, backgrounds = [], []
+        for j, f in enumerate((t - 1, t, t + 1)):
+            image, background = (
+                (sample[key][j].numpy().transpose(1, 2, 0) * 255 + 0.5).astype(np.uint8)
+                for key in ("target", "background")
+            )
+            image, background = over_backdrop(
+                image, background, self.target.positions[f], self.target.faces,
+                self.body_frames[f], self.body.faces, camera, k, clear, back,
+            )  # fmt: skip
+            images.append(image.transpose(2, 0, 1).astype(np.float32) / 255)
+            backgrounds.append(background.transpose(2, 0, 1).astype(np.float32) / 255)
+        sample["target"] = torch.from_numpy(np.ascontiguousarray(np.stack(images)))
+        sample["background"] = torch.from_numpy(np.ascontiguousarray(np.stack(backgrounds)))
         return sample
+
+
+def over_backdrop(
+    image, background, garment, garment_faces, body, body_faces, camera, k, clear, back
+) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's render (garment on body) and body-alone render, each (H, W, 3) uint8 over
+    the clear colour ``clear``, put over the backdrop ``back`` (H, W, 3) uint8 instead: the
+    coverage of each from rasterizing its surfaces at the render's ``k x k`` samples
+    (:func:`core.compositing.recomposite`). garment (Vg, 3), body (Vb, 3) float vertices."""
+    verts = np.concatenate([garment, body]).astype(np.float32)
+    faces = np.concatenate([garment_faces, body_faces + len(garment)])
+    image = recomposite(image, surface_coverage(verts, faces, camera, k), clear, back)
+    background = recomposite(background, surface_coverage(body, body_faces, camera, k), clear, back)
+    return image, background
 
 
 def _scene(base):
@@ -212,31 +223,23 @@ class LitDataset:
         if i in self._renders:
             return self._renders[i]
         t, _, camera = self.samples[i]
-        k = self.shading.supersample
-        clear = self.shading.background
+        k, clear = self.shading.supersample, self.shading.background
         body_faces = self.body.faces
         back = None
         if self.backdrop is not None:
             back = fit_image(self.backdrop, camera.width, camera.height)
-        faces_all = np.concatenate([self.target.faces, body_faces + self.target.num_vertices])
         out = {"target": [], "background": [], "target_mask": []}
         for f in (t - 1, t, t + 1):
-            body = self.body_frames[f]
+            body, garment = self.body_frames[f], self.target.positions[f]
             gt = render_views(
-                Mesh(self.target.positions[f], self.target.faces),
-                Mesh(body, body_faces),
-                [camera],
-                self.shading,
+                Mesh(garment, self.target.faces), Mesh(body, body_faces), [camera], self.shading
             )[0]
             image, background = gt.image, gt.background
             if back is not None:
-                verts = np.concatenate([self.target.positions[f], body]).astype(np.float32)
-                image = recomposite(
-                    image, surface_coverage(verts, faces_all, camera, k), clear, back
-                )
-                background = recomposite(
-                    background, surface_coverage(body, body_faces, camera, k), clear, back
-                )
+                image, background = over_backdrop(
+                    image, background, garment, self.target.faces, body, body_faces,
+                    camera, k, clear, back,
+                )  # fmt: skip
             out["target"].append(image.transpose(2, 0, 1).astype(np.float32) / 255)
             out["background"].append(background.transpose(2, 0, 1).astype(np.float32) / 255)
             out["target_mask"].append(gt.coverage[None].astype(np.float32))
@@ -485,12 +488,13 @@ def finetune_lighting(
         if callback is not None:
             callback(i, losses)
 
-    result = finetune_relight(
-        model, data, out, steps=steps, device=device, progress=progress, callback=step
-    )
+    # The light and the backdrop first: a model beside them is never played in another light.
     write_json(out / LIGHTING_FILE, lit.to_dict())
     if backdrop is not None:
         write_png(out / BACKDROP_FILE, backdrop)
+    result = finetune_relight(
+        model, data, out, steps=steps, device=device, progress=progress, callback=step
+    )
     frames = [data.frames(i)["target"][1] for i in range(len(data))]
     tiles = [(f.transpose(1, 2, 0) * 255 + 0.5).astype(np.uint8) for f in frames]
     write_png(out / "examples.png", contact_sheet(tiles, [f"example {i}" for i in indices]))

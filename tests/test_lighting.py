@@ -151,3 +151,20 @@ def test_a_relit_views_backdrop(tmp_path):
         is None
     )
     assert lighting_backdrop("overcast", PRESETS["overcast"], None, CAM) is None
+
+
+def test_a_large_environment_is_projected_from_its_average():
+    """A panorama is averaged down before its projection, to the same light within 1%."""
+    from core.lighting import _BAND_GAIN, ENVIRONMENT_ROWS, _shrink, equirect_directions, sh_basis
+
+    h = 4 * ENVIRONMENT_ROWS
+    lat = np.linspace(1, 0, h)[:, None, None]
+    lon = np.linspace(0, 2 * np.pi, 2 * h)[None, :, None]
+    radiance = (0.2 + lat**2 * (1.5 + np.cos(lon)) * np.array([1.0, 0.7, 0.4])).astype(np.float32)
+    assert _shrink(radiance).shape == (ENVIRONMENT_ROWS, 2 * ENVIRONMENT_ROWS, 3)
+    big = environment_light(environment_coefficients(radiance), np.eye(3))
+    d, omega = equirect_directions(h, 2 * h)
+    assert np.isclose(omega.sum(), 4 * np.pi, rtol=1e-3)
+    full = (sh_basis(d.reshape(-1, 3)) * omega.reshape(-1, 1)).T @ radiance.reshape(-1, 3)
+    exact = np.maximum(sh_basis(np.eye(3)) @ (full * _BAND_GAIN[:, None]), 0)
+    assert np.allclose(big, exact, rtol=0.01)

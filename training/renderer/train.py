@@ -423,12 +423,13 @@ def finetune_relight(
     out_dir: str | os.PathLike,
     config: RendererConfig | None = None,
     *,
-    steps: int = 100,
+    steps: int,
     **kwargs,
 ) -> RendererTrainResult:
     """Fine-tune to a new light from a few example renders (the paper's section (iv)): only the
     last two decoder layers (:func:`training.renderer.model.relight_parameters`) and the
-    discriminator, when the model has one, train, for ``steps`` (the paper's about 100)."""
+    discriminator, when the model has one, train, for ``steps`` (the paper's about 100:
+    ``pipeline.finetune.RELIGHT_STEPS``)."""
     cfg = config or load_model(model_path)[0]
     return train_renderer(
         dataset, out_dir, cfg, steps=steps, init_from=model_path, trainable="relight", **kwargs
