@@ -2,7 +2,7 @@
 
 Usage: ``python benchmarks/renderer_validation.py PROJECT --method ours|pix2pix|dnr|dnr-gan
 [--set KEY=VALUE ...] [--seeds 0 1] [--source sim|joint2coarse] [--steps N] [--device cpu|cuda]
-[--workers W] [--json]``
+[--workers W] [--keep DIR] [--json]``
 
 Trains the method as the project would (its preset and settings; ``--set`` changes one field of
 the method's configuration, as ``dng train renderer`` / ``dng train baselines`` read it, e.g.
@@ -14,7 +14,8 @@ project's models are left as they are. ``--steps`` changes the budget (default t
 gets the longer budget alike); ``--device`` trains on a GPU, with ``--workers`` loader processes
 (the batches, hence the weights, do not depend on them); scoring runs on the CPU. Then scores it
 on the renderers' validation motion (protocol V, ``renderer_validation``: its own cameras) on
-Joint2Coarse's proxy and on the simulated one, and prints the garment region's MSE and SSIM,
+Joint2Coarse's proxy and on the simulated one (``--keep DIR`` keeps each seed's model file as
+``DIR/METHOD-seed-N.pt``, to render or look at), and prints the garment region's MSE and SSIM,
 the full frame's MSE and the flicker (means over the samples), per seed and over the seeds.
 
 The validation motion's target and images are made in the project first when they are missing
@@ -28,16 +29,19 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import shutil
 import sys
 import tempfile
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from app.commands import parse_setting
 from core.errors import InputError
+from core.fileio import atomic_path
 from core.project import Project
 from pipeline.config import (
     baseline_config,
@@ -69,6 +73,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, help="training steps (default: the project's)")
     ap.add_argument("--device", default="cpu", help="cpu or cuda[:i] (training; scored on the CPU)")
     ap.add_argument("--workers", type=int, default=0, help="data loader processes")
+    ap.add_argument("--keep", metavar="DIR", help="keep each seed's model file in DIR")
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
     if args.steps is not None and args.steps < 1:
@@ -130,6 +135,11 @@ def main() -> None:
                 )  # fmt: skip
             train_s = time.perf_counter() - start
             model = load_for_evaluation(result.model_path)
+            if args.keep:
+                keep = Path(args.keep)
+                keep.mkdir(parents=True, exist_ok=True)
+                with atomic_path(keep / f"{args.method}-seed-{seed}.pt") as tmp_model:
+                    shutil.copyfile(result.model_path, tmp_model)
         results, _ = evaluate_motion(
             {src: (model, d) for src, d in scored.items()}, EvalConfig(sheet_samples=0)
         )

@@ -173,6 +173,33 @@ def test_model_files_from_before_the_readout_load_without_one():
     assert RenderNet(RendererConfig.from_stored(stored)).readout is None
 
 
+def test_the_guided_decoder_sees_the_body_where_the_unguided_one_cannot():
+    """With ``background_guide`` the decoder's garment mask A depends on the body-only image
+    under the proxy; without it the background reaches the image only through the blend."""
+    torch.manual_seed(0)
+    cfg = PRESETS["tiny"]
+    uv, motion, mask = _inputs(cfg, 1, 8)
+    bg, other = torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 8)
+    masks = {}
+    for guided in (False, True):
+        net = RenderNet(cfg.replace(background_guide=guided)).eval()
+        with torch.no_grad():
+            z, skips = net.encode_with_skips(net.input_features(uv, motion, mask))
+            masks[guided] = [net.decode(z, z, b, skips)[1] for b in (bg, other)]
+    assert torch.equal(*masks[False])
+    assert float((masks[True][0] - masks[True][1]).abs().max()) > 1e-4
+    # each up stage's fuse takes the background's 3 channels beside its input and skip
+    net = RenderNet(cfg.replace(background_guide=True))
+    plain = RenderNet(cfg)
+    for up, up0 in zip(net.decoder.ups, plain.decoder.ups, strict=True):
+        assert up.fuse[0].in_channels == up0.fuse[0].in_channels + 3
+    with pytest.raises(ValueError, match="guided by the background"):
+        net.decoder(z, skips, None)
+    # model files from before the field load unguided
+    stored = {k: v for k, v in cfg.to_dict().items() if k != "background_guide"}
+    assert RendererConfig.from_stored(stored).background_guide is False
+
+
 def test_without_temporal_conditioning_frame_t_minus_1_changes_nothing():
     torch.manual_seed(0)
     cfg = PRESETS["tiny"]
@@ -421,11 +448,12 @@ def test_streaming_equals_batch_and_encodes_each_frame_once(live, name):
     assert np.array_equal(img, r.render_pair(cam2, frame, frames[1]))
 
 
+@pytest.mark.parametrize("guided", [False, True])
 @pytest.mark.parametrize("name", ["tiny", "cpu"])
-def test_crop_render_matches_full_frame_and_background_outside(live, name):
+def test_crop_render_matches_full_frame_and_background_outside(live, name, guided):
     sc, cam, frames = live
     torch.manual_seed(2)
-    r = NeuralRenderer(RenderNet(PRESETS[name]), sc.faces, sc.uvs)
+    r = NeuralRenderer(RenderNet(PRESETS[name].replace(background_guide=guided)), sc.faces, sc.uvs)
     t = 3
     crop = r.render_pair(cam, frames[t], frames[t - 1])
     full = r.render_pair(cam, frames[t], frames[t - 1], crop=False)

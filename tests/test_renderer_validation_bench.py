@@ -47,8 +47,17 @@ def test_the_bench_reproduces_the_projects_validation_figures(smoke_project, tmp
 def test_a_changed_setting_trains_another_model_and_says_so(smoke_project, tmp_path):
     project = tmp_path / "project"
     shutil.copytree(smoke_project, project, symlinks=True)
-    run = _run(str(project), "--method", "ours", "--set", "lr_decay_from=1.0", "--seeds", "0", "1")
+    keep = tmp_path / "kept"
+    run = _run(
+        str(project), "--method", "ours", "--set", "lr_decay_from=1.0", "--seeds", "0", "1",
+        "--keep", str(keep),
+    )  # fmt: skip
     assert run.returncode == 0, run.stderr
+    # --keep: each seed's model, loadable, with the changed setting in it
+    from training.renderer.train import load_model
+
+    assert sorted(p.name for p in keep.iterdir()) == ["ours-seed-0.pt", "ours-seed-1.pt"]
+    assert load_model(keep / "ours-seed-1.pt")[0].lr_decay_from == 1.0
     assert (
         "ours on val-walk (validation), trained over the proxy 'joint2coarse', settings changed: "
         "{'lr_decay_from': 1.0}" in run.stdout

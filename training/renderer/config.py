@@ -62,6 +62,11 @@ class RendererConfig(PlainConfig):
     encoder, decoder and refinement, too slowly for a few hundred steps: the garment's detail on
     validation was 0.49 of the ground truth's (docs/decisions.md, "texture_readout"). Not in the
     paper; off in the ``paper`` preset."""
+    background_guide: bool = False
+    """Show the decoder the body-only background image, averaged down to each of its scales
+    (3 more input channels to each up stage's fuse): the encoder's input is zero off the proxy
+    and never shows the body, so the body in front of the garment or between its tiers could
+    only be guessed. Not in the paper (whose decoder sees the background only in the blend)."""
     blend_output: bool = True
     """Blend the final RGB with the background image by a predicted alpha, so the body off the
     garment is exact instead of a learned copy. Not in the paper; off in the ``paper`` preset."""
@@ -211,12 +216,13 @@ class RendererConfig(PlainConfig):
         """The config of a model file or bundle: fields added since read as the files were
         trained: before ``lr_decay_from`` at constant rates (1.0), before ``adam_eps`` at
         torch's 1e-8, before ``texture_lr_scale`` at one rate, before ``texture_readout``
-        without one."""
+        without one, before ``background_guide`` unguided."""
         old = {
             "lr_decay_from": 1.0,
             "adam_eps": 1e-8,
             "texture_lr_scale": 1.0,
             "texture_readout": False,
+            "background_guide": False,
         }
         return cls.from_dict({**old, **data})
 

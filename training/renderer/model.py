@@ -178,19 +178,31 @@ class SPADEResBlock(nn.Module):
 
 class UpStage(nn.Module):
     """x2 transposed conv; with a skip, the encoder's activation at the new scale is
-    concatenated and fused by a 3x3 conv."""
+    concatenated, and with ``extra`` channels so is a guide image at that scale (the
+    background, :class:`Decoder`); then a 3x3 conv fuses them."""
 
-    def __init__(self, w_in: int, w_out: int, skip: bool):
+    def __init__(self, w_in: int, w_out: int, skip: bool, extra: int = 0):
         super().__init__()
         self.up = nn.Sequential(nn.ConvTranspose2d(w_in, w_out, 4, 2, 1), _act())
-        self.fuse = nn.Sequential(nn.Conv2d(2 * w_out, w_out, 3, 1, 1), _act()) if skip else None
+        width = w_out * (2 if skip else 1) + extra
+        self.fuse = (
+            nn.Sequential(nn.Conv2d(width, w_out, 3, 1, 1), _act()) if width > w_out else None
+        )
+        self.skip = skip
 
-    def forward(self, z: torch.Tensor, skip: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, z: torch.Tensor, skip: torch.Tensor | None = None, guide: torch.Tensor | None = None
+    ) -> torch.Tensor:
         z = self.up(z)
         if self.fuse is not None:
-            if skip is None:
-                raise ValueError("this decoder has skip connections: pass the encoder's skips")
-            z = self.fuse(torch.cat([z, skip], 1))
+            parts = [z]
+            if self.skip:
+                if skip is None:
+                    raise ValueError("this decoder has skip connections: pass the encoder's skips")
+                parts.append(skip)
+            if guide is not None:
+                parts.append(guide)
+            z = self.fuse(torch.cat(parts, 1))
         return z
 
 
@@ -199,28 +211,52 @@ class Decoder(nn.Module):
 
     ``ups[-1]``, ``features_head`` and ``mask_head`` are "the last decoder layers" that
     background fine-tuning trains. With ``skips`` every up stage also takes the encoder's
-    activation of frame t at its scale (a U-Net; the paper's decoder has none).
+    activation of frame t at its scale (a U-Net; the paper's decoder has none). With
+    ``guided`` every up stage also takes the body-only background image, averaged down to its
+    scale (3 channels in [-1, 1]): the decoder sees where the body is, in front of the proxy or
+    between its tiers, which the encoder's input (zero off the proxy, no body) never shows.
     """
 
-    def __init__(self, latent: int, base: int, n_down: int, features: int, skips: bool = False):
+    def __init__(
+        self,
+        latent: int,
+        base: int,
+        n_down: int,
+        features: int,
+        skips: bool = False,
+        guided: bool = False,
+    ):
         super().__init__()
         widths = [min(base * 2**i, latent) for i in range(n_down)][::-1]  # coarse -> fine
         ups = []
         w = latent
         for w2 in widths:
-            ups.append(UpStage(w, w2, skips))
+            ups.append(UpStage(w, w2, skips, 3 if guided else 0))
             w = w2
         self.ups = nn.ModuleList(ups)
         self.skips = skips
+        self.guided = guided
         self.features_head = nn.Conv2d(w, features, 3, 1, 1)
         self.mask_head = nn.Conv2d(w, 1, 3, 1, 1)
 
     def forward(
-        self, z: torch.Tensor, skips: list[torch.Tensor] | None = None
+        self,
+        z: torch.Tensor,
+        skips: list[torch.Tensor] | None = None,
+        guide: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """skips: the encoder's activations, full resolution first (needed with ``skips``)."""
+        """z (B, Cz, h, w); skips: the encoder's activations, full resolution first (needed
+        with ``skips``); guide (B, 3, h * 2**n, w * 2**n) the background in [-1, 1] (needed
+        with ``guided``)."""
+        if self.guided and guide is None:
+            raise ValueError("this decoder is guided by the background: pass it")
+        n = len(self.ups)
         for i, up in enumerate(self.ups):
-            z = up(z, skips[len(self.ups) - 1 - i] if self.skips and skips is not None else None)
+            g = None
+            if self.guided:
+                f = 2 ** (n - 1 - i)  # this stage's output is 1 / f of the full resolution
+                g = F.avg_pool2d(guide, f) if f > 1 else guide
+            z = up(z, skips[n - 1 - i] if self.skips and skips is not None else None, g)
         return self.features_head(z), torch.sigmoid(self.mask_head(z))
 
 
@@ -289,8 +325,9 @@ class RenderNet(nn.Module):
         cz = self.encoder.out_channels
         self.spade = SPADEResBlock(cz)
         self.decoder = Decoder(
-            cz, config.base_width, config.n_down, config.decoder_features, config.skip_connections
-        )
+            cz, config.base_width, config.n_down, config.decoder_features,
+            config.skip_connections, config.background_guide,
+        )  # fmt: skip
         self.background_net = nn.Sequential(
             nn.Conv2d(3, config.background_width, 3, 1, 1),
             _act(),
@@ -354,8 +391,9 @@ class RenderNet(nn.Module):
             if skips is None:
                 raise ValueError("this renderer reads its texture out: pass the encoder's skips")
             readout = skips[-1]
-        u, a = self.decoder(self.spade(z, z_prev), skips)
-        bg = self.background_net(background * 2 - 1)
+        guide = background * 2 - 1
+        u, a = self.decoder(self.spade(z, z_prev), skips, guide if self.decoder.guided else None)
+        bg = self.background_net(guide)
         return self.refiner((1 - a) * bg + a * u, background, readout), a
 
     def forward(
