@@ -316,6 +316,17 @@ def deviations(config: PipelineConfig) -> list[Deviation]:
             "the body off the garment is exact, not a learned copy (the garment-region "
             "figures leave it out)",
         )
+    if r.blend_output and r.texture_readout and r.alpha_prior:
+        add(
+            "renderer",
+            "(no blend)",
+            f"the blend's alpha logit raised by {r.alpha_prior:g} on the proxy's coverage: "
+            "the garment starts opaque where the proxy is, and the network learns where to "
+            "carve it",
+            "learned from nothing in a few hundred steps, the alpha let the backdrop through "
+            "the garment, where most of our garment-region error was; chosen on the validation "
+            'motion (docs/decisions.md, "alpha_prior")',
+        )
     add(
         "renderer",
         "SPADE block's shortcut SPADE(I(Z))",

@@ -173,6 +173,23 @@ def test_model_files_from_before_the_readout_load_without_one():
     assert RenderNet(RendererConfig.from_stored(stored)).readout is None
 
 
+def test_the_alpha_prior_raises_the_blends_alpha_on_the_proxy_and_nowhere_else():
+    torch.manual_seed(0)
+    for use_motion in (True, False):
+        cfg = PRESETS["tiny"].replace(alpha_prior=5.0, use_motion=use_motion)
+        net = RenderNet(cfg).eval()
+        uv, motion, mask = _inputs(cfg, 2, 8)
+        with torch.no_grad():
+            x = net.input_features(uv, motion if use_motion else None, mask)
+            assert torch.equal(net.coverage(x), mask)
+            net.readout.weight.zero_()
+            logits = net.encode_with_skips(x)[1][-1]
+        assert torch.equal(logits[:, 3:4], 5.0 * mask)  # the alpha's logit, on the proxy only
+        assert float(logits[:, :3].abs().max()) == 0.0  # the colours untouched
+    with pytest.raises(InputError, match="alpha_prior"):
+        PRESETS["tiny"].replace(alpha_prior=float("nan"))
+
+
 def test_the_guided_decoder_sees_the_body_where_the_unguided_one_cannot():
     """With ``background_guide`` the decoder's garment mask A depends on the body-only image
     under the proxy; without it the background reaches the image only through the blend."""

@@ -368,8 +368,19 @@ class RenderNet(nn.Module):
         an alpha logit fourth with ``blend_output``."""
         z, skips = self.encoder(x, skips=True)
         if self.readout is not None:
-            skips = [*skips, self.readout(x[:, : self.config.texture_out_channels])]
+            logits = self.readout(x[:, : self.config.texture_out_channels])
+            if self.config.alpha_prior and self.config.blend_output:
+                prior = torch.zeros_like(logits)
+                prior[:, 3:4] = self.config.alpha_prior * self.coverage(x)
+                logits = logits + prior
+            skips = [*skips, logits]
         return z, skips
+
+    def coverage(self, x: torch.Tensor) -> torch.Tensor:
+        """The proxy's coverage (B, 1, H, W) in {0, 1}, read off input features (B, Cin, H, W):
+        every channel is zero off the proxy, and on it the motion features (Gaussians of the
+        distances to the joints) or, without them, the coverage mask are positive."""
+        return (x[:, self.config.texture_out_channels :].amax(1, keepdim=True) > 0).to(x.dtype)
 
     def decode(
         self,

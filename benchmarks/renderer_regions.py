@@ -1,0 +1,138 @@
+"""Where in the garment region each method's error lies: a diagnosis of the renderers' MSE.
+
+Usage: ``python benchmarks/renderer_regions.py PROJECT [--motion NAME] [--source
+joint2coarse|sim] [--model NAME=FILE ...] [--json]``
+
+Scores the project's renderer and baselines (and any other model file given with ``--model``,
+such as one kept by ``benchmarks/renderer_validation.py --keep``) on one evaluated motion
+(default: the renderers' validation motion, protocol V) and splits each method's squared error
+over the garment region (the ground truth's garment or the proxy's coverage, as the report's
+garment-region figures take it) by what the pixel holds:
+
+- ``garment on the proxy, body behind``: the ground truth shows the garment, the proxy covers
+  the pixel, and the body-only image shows the body there;
+- ``garment on the proxy, backdrop behind``: the same with the plain backdrop behind;
+- ``garment off the proxy``: the garment where the proxy does not reach (a flare);
+- ``proxy only, body shows``: the proxy covers the pixel, the ground truth shows the body (a
+  gap between tiers, or the body in front);
+- ``proxy only, backdrop shows``: the proxy covers it, the ground truth shows the backdrop.
+
+Each figure is the category's summed squared error (mean over RGB) over the number of
+garment-region pixels, so a method's figures add up to its pixel-pooled garment-region MSE
+(the report's is the mean over samples of each sample's MSE, close to it). The backdrop is told
+from the body by the body-only image's difference from its corner pixel.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import torch
+
+from core.errors import InputError
+from core.project import Project
+from pipeline.config import project_config, renderer_validation_motion
+from training.baselines import load_for_evaluation
+from training.dataset import GarmentDataset
+from training.evaluate import garment_region
+
+CATEGORIES = (
+    "garment on the proxy, body behind",
+    "garment on the proxy, backdrop behind",
+    "garment off the proxy",
+    "proxy only, body shows",
+    "proxy only, backdrop shows",
+)
+#: Summed |RGB difference| from the corner pixel above which the body-only image shows the body.
+BODY_THRESHOLD = 0.05
+
+
+def categories(batch: dict) -> list[torch.Tensor]:
+    """The :data:`CATEGORIES` masks (B, H, W) bool of frame t of a collated batch."""
+    garment = batch["target_mask"][:, 1, 0] > 0.5
+    proxy = batch["proxy_mask"][:, 1, 0] > 0
+    bg = batch["background"][:, 1]
+    body = (bg - bg[:, :, :1, :1]).abs().sum(1) > BODY_THRESHOLD
+    return [
+        garment & proxy & body,
+        garment & proxy & ~body,
+        garment & ~proxy,
+        ~garment & proxy & body,
+        ~garment & proxy & ~body,
+    ]
+
+
+def split_error(models: dict, data, batch_size: int = 4) -> dict:
+    """{"pixels": garment-region pixel count, "share": {category: share of them},
+    "methods": {name: {category: summed squared error / pixels, "total": their sum}}}."""
+    sse = {name: torch.zeros(len(CATEGORIES), dtype=torch.float64) for name in models}
+    count = torch.zeros(len(CATEGORIES), dtype=torch.float64)
+    region = 0.0
+    for start in range(0, len(data), batch_size):
+        items = [data[i] for i in range(start, min(start + batch_size, len(data)))]
+        batch = torch.utils.data.default_collate(items)
+        masks = categories(batch)
+        region += float((garment_region(batch)[:, 0] > 0).sum())
+        count += torch.tensor([float(m.sum()) for m in masks], dtype=torch.float64)
+        for name, model in models.items():
+            with torch.no_grad():
+                out = model.render(batch).float().clamp(0, 1)
+            err = ((out - batch["target"][:, 1]) ** 2).mean(1)
+            sse[name] += torch.tensor([float(err[m].sum()) for m in masks], dtype=torch.float64)
+    if region == 0:
+        raise InputError("no garment-region pixel in the motion's samples")
+    methods = {}
+    for name, s in sse.items():
+        row = {c: float(v / region) for c, v in zip(CATEGORIES, s, strict=True)}
+        row["total"] = float(s.sum() / region)
+        methods[name] = row
+    share = {c: float(v / region) for c, v in zip(CATEGORIES, count, strict=True)}
+    return {"pixels": int(region), "share": share, "methods": methods}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("project")
+    ap.add_argument("--motion", help="an evaluated motion (default: the validation motion)")
+    ap.add_argument("--source", choices=["joint2coarse", "sim"], default="joint2coarse")
+    ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
+    ap.add_argument("--json", action="store_true", help="print only JSON")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    project = Project(args.project)
+    try:
+        config = project_config(project)
+        motion = args.motion
+        if motion is None:
+            spec = renderer_validation_motion(config)
+            if spec is None:
+                ap.error("the project has no renderer validation motion: give --motion NAME")
+            motion = spec.name
+        files = {"ours": project.path("renderer", "renderer.pt")}
+        for kind in config.baselines:
+            files[kind] = project.path(f"baselines/{kind}", f"{kind}.pt")
+        for item in args.model:
+            name, sep, path = item.partition("=")
+            if not sep or not name or not path:
+                ap.error(f"--model {item!r}: give NAME=FILE")
+            files[name] = path
+        models = {name: load_for_evaluation(path) for name, path in files.items()}
+        data = GarmentDataset(project.root, source=args.source, split=motion)
+        out = {"motion": motion, "source": args.source, **split_error(models, data)}
+    except InputError as exc:
+        ap.exit(2, f"renderer_regions: {exc}\n")
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return
+    names = list(out["methods"])
+    print(f"{motion}, {args.source} proxy: {out['pixels']} garment-region pixels")
+    print(f"{'where':40s} {'share':>6s} " + " ".join(f"{n[:12]:>12s}" for n in names))
+    for c in (*CATEGORIES, "total"):
+        share = f"{out['share'][c]:6.3f}" if c in out["share"] else " " * 6
+        row = " ".join(f"{out['methods'][n][c]:12.5f}" for n in names)
+        print(f"{c:40s} {share} {row}")
+
+
+if __name__ == "__main__":
+    main()

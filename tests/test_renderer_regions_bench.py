@@ -1,0 +1,95 @@
+"""``benchmarks/renderer_regions.py``: a method's garment-region error split by what each pixel
+holds, on cases with known answers."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "renderer_regions.py"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("renderer_regions", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _sample() -> dict:
+    """One 4 x 4 sample (frames t-1, t, t+1 alike): a 0.5 grey backdrop, the body in column
+    3, the garment (red) in rows 1-2 of columns 0-2, the proxy in rows 1-3 of columns 1-3. So
+    frame t has 4 px of garment on the proxy over the backdrop, 2 px of garment off the proxy,
+    and 5 px of proxy alone: 3 over the body, 2 over the backdrop."""
+    bg = torch.full((3, 4, 4), 0.5)
+    bg[:, :, 3] = torch.tensor([0.9, 0.7, 0.6])[:, None]  # the body, column 3
+    garment = torch.zeros(1, 4, 4)
+    garment[0, 1:3, 0:3] = 1
+    proxy = torch.zeros(1, 4, 4)
+    proxy[0, 1:4, 1:4] = 1
+    target = torch.where(garment.bool(), torch.tensor([0.8, 0.1, 0.1])[:, None, None], bg)
+    frames = lambda a: torch.stack([a, a, a])  # noqa: E731
+    return {
+        "target": frames(target),
+        "background": frames(bg),
+        "target_mask": frames(garment),
+        "proxy_mask": frames(proxy),
+    }
+
+
+class _Paints:
+    def __init__(self, fn):
+        self.fn = fn
+
+    def render(self, batch):
+        return self.fn(batch)
+
+
+def test_the_categories_partition_the_garment_region_and_add_up_to_the_mse():
+    bench = _bench()
+    data = [_sample(), _sample()]
+    models = {
+        "truth": _Paints(lambda b: b["target"][:, 1]),
+        "background": _Paints(lambda b: b["background"][:, 1]),
+        "grey": _Paints(lambda b: torch.full_like(b["target"][:, 1], 0.5)),
+    }
+    out = bench.split_error(models, data, batch_size=1)
+    share = out["share"]
+    # garment 6 px, proxy 9 px, both 4 px: 11 px of garment region a sample
+    assert out["pixels"] == 22
+    assert abs(sum(share.values()) - 1) < 1e-12
+    assert abs(share["garment on the proxy, backdrop behind"] - 4 / 11) < 1e-12
+    assert share["garment on the proxy, body behind"] == 0
+    assert abs(share["garment off the proxy"] - 2 / 11) < 1e-12
+    assert abs(share["proxy only, body shows"] - 3 / 11) < 1e-12
+    assert abs(share["proxy only, backdrop shows"] - 2 / 11) < 1e-12
+    # the ground truth has no error anywhere
+    assert all(v == 0 for v in out["methods"]["truth"].values())
+    # the background is wrong only where the garment is, by the garment's distance from it
+    back = out["methods"]["background"]
+    assert back["proxy only, backdrop shows"] == back["proxy only, body shows"] == 0
+    on_backdrop = ((0.8 - 0.5) ** 2 + 2 * (0.1 - 0.5) ** 2) / 3
+    assert abs(back["garment on the proxy, backdrop behind"] - on_backdrop * 4 / 11) < 1e-6
+    # every method's categories add up to its pixel-pooled garment-region MSE
+    for name, row in out["methods"].items():
+        pooled = sum(v for k, v in row.items() if k != "total")
+        assert abs(row["total"] - pooled) < 1e-12, name
+    # a flat grey misses the garment off the proxy as on it, and the body where it shows
+    grey = out["methods"]["grey"]
+    assert abs(grey["garment off the proxy"] - on_backdrop * 2 / 11) < 1e-6
+    body = ((0.9 - 0.5) ** 2 + (0.7 - 0.5) ** 2 + (0.6 - 0.5) ** 2) / 3
+    assert abs(grey["proxy only, body shows"] - body * 3 / 11) < 1e-6
+    assert grey["proxy only, backdrop shows"] == 0
+
+
+def test_a_missing_model_file_exits_2_naming_it(smoke_project):
+    run = subprocess.run(
+        [sys.executable, str(BENCH), str(smoke_project), "--model", "x=/no/such/model.pt"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 2 and "/no/such/model.pt" in run.stderr
+    assert "model file not found" in run.stderr
