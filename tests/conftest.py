@@ -90,6 +90,17 @@ def run_benchmark(script: str, *args) -> subprocess.CompletedProcess:
     )
 
 
+def load_benchmark(script: str):
+    """``benchmarks/SCRIPT`` imported as a module, to call its functions directly."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / script
+    spec = importlib.util.spec_from_file_location(Path(script).stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def assert_close(actual, expected, atol=1e-6, rtol=0.0, what="arrays"):
     """``np.allclose`` that says where the largest difference is (PyTorch3D style)."""
     actual, expected = np.asarray(actual, np.float64), np.asarray(expected, np.float64)

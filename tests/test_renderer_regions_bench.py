@@ -3,21 +3,19 @@ holds, on cases with known answers."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import torch
 
+from tests.conftest import load_benchmark
+
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "renderer_regions.py"
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("renderer_regions", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("renderer_regions.py")
 
 
 def _sample() -> dict:

@@ -3,7 +3,6 @@ at several iteration counts, against the step run to convergence."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -13,16 +12,14 @@ import pytest
 from core.body.shape import BodyShape
 from core.errors import InputError
 from core.motion.procedural import make_motion
+from tests.conftest import load_benchmark
 from tests.sim_helpers import frustum_skirt
 
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "sim_step_convergence.py"
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("sim_step_convergence", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("sim_step_convergence.py")
 
 
 def test_more_iterations_come_closer_to_the_converged_step():
