@@ -154,9 +154,10 @@ class SimConfig:
     implicit solver). 1 for a garment of its own: a coarse one (a 96-vertex skirt, one step a
     frame) blew up at 0.01. A coarse triangle stands for cloth that buckles into folds finer
     than it, which costs little: see ``layer_compression``."""
-    layer_compression: float = 0.01
+    layer_compression: float = 0.003
     """``compression`` for a proxy kept off the body by its layers (``thickness``): at 1 the
-    folds a kick, a kneel or a squat made in the quick proxy were held in place
+    folds a kick, a kneel or a squat made in the quick proxy were held in place, and at 0.01,
+    with converged steps, a fold tucked up onto the hips after a squat or a kick stayed there
     (docs/decisions.md, "The proxy's cloth")."""
     rest_bending: bool = True
     """Bending toward the garment's rest shape (each hinge's rest bend turned with the cloth),
