@@ -17,6 +17,7 @@ from core.errors import InputError
 from core.fileio import atomic_open, write_json
 from core.progress import StageEta
 from core.project import RECORD_NAME, Project
+from core.sim.sanity import STANDING_FEET_M, STANDING_HEIGHT_SHARE, STANDING_TILT_DEG
 from pipeline.config import (
     Log,
     PipelineConfig,
@@ -906,6 +907,24 @@ def _weights_metrics_markdown(motions: dict, first: dict) -> list[str]:
     return lines
 
 
+def _hem_end_cell(sim: dict) -> str:
+    """The simulation table's "hem at end" cell of one clip's report: the figure, or n/a with
+    what ruled it out (the body not standing over the clip's last half second)."""
+    rise, tilt, height = (
+        sim.get(k) for k in ("hem_rise_end_mm", "end_tilt_deg", "end_hips_height")
+    )
+    if rise is not None:
+        return f"{rise:.0f}"
+    if tilt is not None and tilt > STANDING_TILT_DEG:
+        return f"n/a (pelvis {tilt:.0f} deg)"
+    if height is not None and height < STANDING_HEIGHT_SHARE:
+        return f"n/a (hips at {height:.2f})"
+    feet = sim.get("end_feet_m")
+    if feet is not None and feet > STANDING_FEET_M:
+        return f"n/a (feet {feet:.2f} m apart)"
+    return "n/a"
+
+
 def _ground_truth_markdown(report: dict) -> list[str]:
     """The detailed target per clip: how it moves (simulated or embedded in the proxy), its
     edge stretch and compression (``len / rest - 1``), tears, and its contact sheet."""
@@ -1043,12 +1062,15 @@ def report_markdown(report: dict) -> str:
         f"## Simulation ({_SOLVER_NAMES.get(cfg.get('sim_solver'), 'newton')}, CPU)",
         "",
         "Hem ratio: the hem's mean distance from the waist's axis over the clip's second half "
-        "over frame 0's (above 1: it flared out, below 1: it closed in; n/a for an embedded "
-        "target, or a simulation made before the figure existed). Waistband drift: the pinned "
-        "waistband's largest rise or sink along the pelvis (hips joint to Spine1) against "
-        "frame 0; hem at end: the hem's rise along the pelvis over the clip's last half second "
-        "(a skirt that rode up and stayed; a clip may end mid-movement). Both relative to the "
-        "hips joint, n/a as for the hem ratio.",
+        "over the garment's as dressed (above 1: it flared out, below 1: it closed in; n/a "
+        "for an embedded target, or a simulation made before the figure existed). Waistband "
+        "drift: the pinned waistband's largest rise or sink along the pelvis (hips joint to "
+        "Spine1) against frame 0. Hem at end: the hem's height along the pelvis over the "
+        "clip's last half second against the garment's as dressed (a skirt that rode up and "
+        "stayed; one hanging settled reads a little below 0), only where the body stands "
+        "all that while: else n/a with the pelvis's tilt, the hips' height (a share of "
+        "standing's) or the feet's stance that ruled it out. Both relative to the hips joint, n/a as for the hem "
+        "ratio.",
         "",
         "| clip | frames | vertices | ms/frame | penetration mean / max (mm) | max strain | "
         "hem ratio | waistband drift (mm) | hem at end (mm) | finite |",
@@ -1064,7 +1086,7 @@ def report_markdown(report: dict) -> str:
             f"{s['penetration_mean_mm']:.2f} / {s['penetration_max_mm']:.1f} | "
             f"{s['strain_max']:.3f} | {figure(s.get('hem_radius_ratio'), '.2f')} | "
             f"{figure(s.get('waistband_rise_max_mm'), '.0f')} | "
-            f"{figure(s.get('hem_rise_end_mm'), '.0f')} | {s['finite']} |"
+            f"{_hem_end_cell(s)} | {s['finite']} |"
         )
     lines += _ground_truth_markdown(report)
     j = report["joint2coarse"]

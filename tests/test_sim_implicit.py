@@ -249,11 +249,12 @@ def test_the_pelvis_of_the_report_is_the_motions_hips_and_spine():
 
     motion = make_motion("kick", 20, 30.0, 0, BodyShape())
     run = prepare(frustum_skirt(24, 12), motion, BodyShape(), FAST)
-    hips, up = _pelvis(mannequin_skeleton(BodyShape()), run.drive)
+    pelvis = _pelvis(mannequin_skeleton(BodyShape()), run.drive)
     joints = canonical_positions(motion)
-    spine = MAPPED_JOINTS.index("Spine1")
-    np.testing.assert_allclose(hips, joints[:, 0], atol=2e-3)
-    np.testing.assert_allclose(up, joints[:, spine] - joints[:, 0], atol=2e-3)
+    spine, left, right = (MAPPED_JOINTS.index(n) for n in ("Spine1", "LeftFoot", "RightFoot"))
+    np.testing.assert_allclose(pelvis.hips, joints[:, 0], atol=2e-3)
+    np.testing.assert_allclose(pelvis.up, joints[:, spine] - joints[:, 0], atol=2e-3)
+    np.testing.assert_allclose(pelvis.feet, joints[:, [left, right]], atol=2e-3)
 
 
 def test_implicit_solver_refuses_a_layered_garment_and_a_bad_tolerance():

@@ -20,13 +20,17 @@ from core.motion.procedural import make_motion
 from core.sim.config import SimConfig
 from core.sim.sanity import (
     FLOOR_PERTURBATION_M,
+    Pelvis,
     after_legs_close,
+    band_measures,
     hem_indices,
     hem_lift,
     hem_radius,
     hem_radius_ratio,
+    pelvis_tilt,
     perturbed,
     rise_over_hips,
+    standing,
 )
 from core.sim.simulate import simulate
 from tests.sim_helpers import frustum_skirt, spin_motion
@@ -155,6 +159,84 @@ def test_rise_over_hips_on_known_geometry():
     assert rise_over_hips(positions, band, hips, up)[1] == pytest.approx(0.0, abs=1e-12)
     with pytest.raises(InputError):
         rise_over_hips(positions, band, hips[:2], up)
+
+
+def _ring_skirt(n: int = 8):
+    """A band from a waist ring (y 0.9, radius 0.15) down to a hem ring (y 0.45, radius 0.3):
+    vertices (2n, 3), faces (2n, 3), the waist's indices (n,) and the hem's (n,)."""
+    a = 2 * np.pi * np.arange(n) / n
+    ring = np.stack([np.cos(a), np.zeros(n), np.sin(a)], axis=1)
+    v = np.concatenate([0.15 * ring + [0, 0.9, 0], 0.3 * ring + [0, 0.45, 0]])
+    k, k1 = np.arange(n), (np.arange(n) + 1) % n
+    f = np.concatenate([np.stack([k, k1, n + k], 1), np.stack([k1, n + k1, n + k], 1)])
+    return v, f, k, n + k
+
+
+#: Hips, Spine1, LeftFoot, RightFoot of a body standing with its hips 0.85 m above its feet.
+REST_JOINTS = np.array([[0, 0.9, 0], [0, 1.0, 0], [0.1, 0.05, 0], [-0.1, 0.05, 0]], float)
+
+
+def test_pelvis_tilt_and_standing_on_known_poses():
+    t = 3
+    joints = np.repeat(REST_JOINTS[None], t, axis=0)
+    joints[1, 1] = joints[1, 0] + 0.1 * np.array(
+        [np.sin(np.radians(60)), np.cos(np.radians(60)), 0]
+    )
+    joints[2, 0, 1] -= 0.3  # crouched: hips 0.55 m above the feet
+    joints[2, 1, 1] -= 0.3
+    pelvis = Pelvis.of(joints, REST_JOINTS)
+    wide = pelvis.feet.copy()
+    wide[0, :, 0] = [0.4, -0.4]
+    assert not standing(pelvis.hips, pelvis.up, wide, 0.85)[0]
+    assert pelvis.standing_height == pytest.approx(0.85)
+    np.testing.assert_allclose(pelvis_tilt(pelvis.up), [0.0, 60.0, 0.0], atol=1e-9)
+    assert standing(pelvis.hips, pelvis.up, pelvis.feet, 0.85).tolist() == [True, False, False]
+    with pytest.raises(InputError):
+        standing(pelvis.hips, pelvis.up, pelvis.feet[:2], 0.85)
+    with pytest.raises(InputError):
+        Pelvis.of(joints[:, :3], REST_JOINTS)
+
+
+def test_band_measures_against_the_garment_as_dressed_and_only_standing():
+    """A hem 2 cm below its dressed height at the end, on a standing body, reads -20 mm; the
+    same hem on a body bent over or crouched at the end is not measured (n/a), and the hem's
+    radius is over the dressed garment's, not over a first frame bent over's."""
+    v, f, waist, hem = _ring_skirt()
+    t, end = 10, 3
+    positions = np.repeat(v[None], t, axis=0)
+    positions[:, hem, 1] -= 0.02
+    joints = np.repeat(REST_JOINTS[None], t, axis=0)
+    m = band_measures(positions, v, f, waist, Pelvis.of(joints, REST_JOINTS), end)
+    assert m.hem_rise_end_mm == pytest.approx(-20.0)
+    assert m.waistband_rise_max_mm == pytest.approx(0.0) and m.hem_radius_ratio == pytest.approx(
+        1.0
+    )
+    assert m.end_tilt_deg == pytest.approx(0.0) and m.end_hips_height == pytest.approx(1.0)
+    assert m.end_feet_m == pytest.approx(0.2)
+    # frame 0 bent over: its hem far from the waist's vertical axis; frame-0's ratio would be 0.5
+    positions[0, hem, 0] *= 2.0
+    positions[0, hem, 2] *= 2.0
+    flared = band_measures(positions, v, f, waist, Pelvis.of(joints, REST_JOINTS), end)
+    assert flared.hem_radius_ratio == pytest.approx(1.0)
+    assert hem_radius_ratio(positions, hem, waist) == pytest.approx(0.5)
+    bent = joints.copy()
+    bent[-1, 1] = bent[-1, 0] + 0.1 * np.array(
+        [0.0, np.cos(np.radians(45)), np.sin(np.radians(45))]
+    )
+    m = band_measures(positions, v, f, waist, Pelvis.of(bent, REST_JOINTS), end)
+    assert m.hem_rise_end_mm is None and m.end_tilt_deg == pytest.approx(45.0)
+    crouched = joints.copy()
+    crouched[-2:, :2, 1] -= 0.3
+    m = band_measures(positions, v, f, waist, Pelvis.of(crouched, REST_JOINTS), end)
+    assert m.hem_rise_end_mm is None and m.end_hips_height == pytest.approx(0.55 / 0.85)
+    wide = joints.copy()
+    wide[-1, 2, 0], wide[-1, 3, 0] = 0.4, -0.4  # feet 0.8 m apart
+    m = band_measures(positions, v, f, waist, Pelvis.of(wide, REST_JOINTS), end)
+    assert m.hem_rise_end_mm is None and m.end_feet_m == pytest.approx(0.8)
+    unpinned = band_measures(
+        positions, v, f, np.zeros(0, np.int64), Pelvis.of(joints, REST_JOINTS), end
+    )
+    assert unpinned == type(m)(None, None, None, None, None, None)
 
 
 def test_after_legs_close_on_known_feet():

@@ -51,7 +51,7 @@ from core.sim.cache import SimCache
 from core.sim.config import CHEBYSHEV_RHO, SimConfig
 from core.sim.drive import BodyDrive, body_drive
 from core.sim.pins import Pins, Seams, find_pins, find_seams
-from core.sim.sanity import hem_indices, hem_radius_ratio, rise_over_hips
+from core.sim.sanity import PELVIS_JOINTS, Pelvis, band_measures
 
 if TYPE_CHECKING:
     from core.sim.implicit import ImplicitScene
@@ -183,16 +183,13 @@ class SimReport:
     penetrating_fraction: float = 0.0
     """Fraction of free vertex-frames inside the colliders."""
     hem_radius_ratio: float | None = None
-    """The hem's mean distance from the waist's axis over the clip's second half over frame
-    0's (:func:`core.sim.sanity.hem_radius_ratio`): above 1 the hem flared out (a spin), below
-    it closed in. None without a boundary loop below the pinned one."""
+    """This and the five below: :class:`core.sim.sanity.BandMeasures`, the waistband and the
+    hem against the body (the hem's radius over the garment's as dressed)."""
     waistband_rise_max_mm: float | None = None
-    """The pinned waistband's largest rise or sink along the pelvis (hips joint to Spine1)
-    against frame 0, relative to the hips joint (:func:`core.sim.sanity.rise_over_hips`): a
-    waistband that climbs the torso. None without pins."""
     hem_rise_end_mm: float | None = None
-    """The hem's rise along the pelvis against frame 0 over the clip's last half second: a hem
-    that rode up and stayed. None as for ``hem_radius_ratio``."""
+    end_tilt_deg: float | None = None
+    end_hips_height: float | None = None
+    end_feet_m: float | None = None
     finite: bool = True
     notes: list = field(default_factory=list)
 
@@ -920,15 +917,14 @@ def _newton_version() -> str:
         return "unknown"
 
 
-def _pelvis(skeleton, drive: BodyDrive) -> tuple[np.ndarray, np.ndarray]:
-    """The hips joint (T, 3) and the pelvis's up direction (T, 3), hips to Spine1 (not
-    normalised), at every clip frame of ``drive``."""
+def _pelvis(skeleton, drive: BodyDrive) -> Pelvis:
+    """The :class:`~core.sim.sanity.Pelvis` of ``skeleton`` at every clip frame of ``drive``."""
     rest = skeleton.rest_positions().astype(np.float64)
-    hips, spine = skeleton.names.index("Hips"), skeleton.names.index("Spine1")
+    joints = [skeleton.names.index(n) for n in PELVIS_JOINTS]
     m = drive.transforms[[drive.frame_step(f) for f in range(drive.num_frames)]]
-    m = m[:, [hips, spine]].astype(np.float64)  # (T, 2, 4, 4)
-    at = np.einsum("tjab,jb->tja", m[..., :3, :3], rest[[hips, spine]]) + m[..., :3, 3]
-    return at[:, 0], at[:, 1] - at[:, 0]
+    m = m[:, joints].astype(np.float64)  # (T, 4, 4, 4)
+    at = np.einsum("tjab,jb->tja", m[..., :3, :3], rest[joints]) + m[..., :3, 3]
+    return Pelvis.of(at, rest[joints])
 
 
 def _report(
@@ -940,15 +936,10 @@ def _report(
     ends = pose_capsules(capsules, drive.transforms[[drive.frame_step(f) for f in range(t)]])
     free = np.setdiff1d(np.arange(garment.num_vertices), pins.indices)
     depth = penetration_depths(positions[:, free], ends, capsules.radii)
-    hem = hem_indices(garment.vertices, garment.faces)
-    flare = rise_end = waist = None
-    hips, up = pelvis[0][:t], pelvis[1][:t]
-    if len(pins.indices):
-        waist = 1e3 * float(np.abs(rise_over_hips(positions, pins.indices, hips, up)).max())
-    if t >= 2 and len(pins.indices) and not np.isin(hem, pins.indices).all():
-        flare = hem_radius_ratio(positions, hem, pins.indices)
-        end = max(1, int(round(0.5 / (drive.dt * drive.steps_per_frame))))  # frames
-        rise_end = 1e3 * float(rise_over_hips(positions, hem, hips, up)[-end:].mean())
+    bands = band_measures(
+        positions, garment.vertices, garment.faces, pins.indices, pelvis,
+        end_frames=max(1, int(round(0.5 / (drive.dt * drive.steps_per_frame)))),
+    )  # fmt: skip
     return SimReport(
         frames=t,
         vertices=garment.num_vertices,
@@ -970,9 +961,7 @@ def _report(
         penetration_p99_mm=float(np.percentile(depth, 99) * 1000) if depth.size else 0.0,
         penetration_max_mm=float(depth.max() * 1000) if depth.size else 0.0,
         penetrating_fraction=float((depth > 0).mean()) if depth.size else 0.0,
-        hem_radius_ratio=flare,
-        waistband_rise_max_mm=waist,
-        hem_rise_end_mm=rise_end,
+        **asdict(bands),
         finite=bool(np.isfinite(positions).all()),
         notes=list(notes),
     )
