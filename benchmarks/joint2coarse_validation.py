@@ -2,7 +2,8 @@
 
 Usage: ``python benchmarks/joint2coarse_validation.py PROJECT [--set KEY=VALUE ...]
 [--seeds 0 1 2] [--without NAME ...] [--train-on NAME ...] [--fit-validation]
-[--fit-test NAME ...] [--realisations N [--realisations-of NAME ...]] [--json] [--test]``
+[--fit-test NAME ...] [--realisations N [--realisations-of NAME ...]]
+[--train-extra KIND:FRAMES[:SEED] ...] [--json] [--test]``
 
 Trains the project's Joint2Coarse (its preset and settings, changed by ``--set`` as ``dng train
 joint2coarse`` reads it, e.g. ``--set model=ours --set residual_widths=[]``) on the project's
@@ -22,7 +23,11 @@ on the validation motions too: how closely the model fits motions it has seen, a
 does on motions it has not (never a choice: a diagnosis); ``--fit-test NAME ...`` the same for
 test motions (it implies ``--test``). ``--train-on`` moves some validation
 motions into training and scores the others: what training on validation motions too would be
-worth to motions it has not seen. ``--no-turn-lags`` measures ours
+worth to motions it has not seen. ``--train-extra KIND:FRAMES[:SEED] ...`` trains on
+procedural clips the project does not hold too (e.g. ``squat:540 kick:300 kneel:300``), each
+made as a library clip is (``pipeline.stages.motions.motion_from_spec``) and simulated with the
+project's settings (cached outside the project, as the realisations are): what a new kind of
+training clip is worth to the validation motions. ``--no-turn-lags`` measures ours
 without the turning-rate features over longer lags, ``--every-joint-dynamic`` with every
 joint's velocities and accelerations instead of ``DYNAMIC_JOINTS``', ``--long-lags`` with
 every dynamic feature over twice the lags too (with ``--set window=66``), and
@@ -45,14 +50,17 @@ import numpy as np
 import torch
 
 from app.commands import parse_setting
+from core.errors import InputError
 from core.mesh import load_mesh
+from core.motion.procedural import PROCEDURAL_KINDS
 from core.project import Project
 from core.sim import load_cache
 from core.sim.sanity import FLOOR_PERTURBATION_M
 from pipeline.config import joint2coarse_config, joint2coarse_splits, project_config
 from pipeline.joint2coarse_eval import simulate_cached
+from pipeline.library import MotionSpec
 from pipeline.stages.joint2coarse import mirror_setting
-from pipeline.stages.motions import load_project_motion
+from pipeline.stages.motions import load_project_motion, motion_from_spec
 from training.joint2coarse import (
     Joint2CoarseClip,
     body_model,
@@ -83,6 +91,28 @@ def _realisation(project: Project, config, name: str, seed: int) -> Joint2Coarse
     sim = simulate_cached(project, config, motion, log, None, FLOOR_PERTURBATION_M, seed)[0]
     joints, root_rot = joint2coarse_inputs(motion)
     return Joint2CoarseClip(joints, root_rot, sim.positions, name=f"{name}-moved-{seed}")
+
+
+def _extra(project: Project, config, text: str) -> Joint2CoarseClip:
+    """A procedural training clip the project does not hold, ``KIND:FRAMES[:SEED]``: made as a
+    library clip is and simulated with the project's settings (cached in the scratch folder)."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3) or parts[0] not in PROCEDURAL_KINDS:
+        raise InputError(
+            f"--train-extra {text}: need KIND:FRAMES[:SEED], KIND one of {', '.join(PROCEDURAL_KINDS)}"
+        )
+    try:
+        frames, seed = int(parts[1]), int(parts[2]) if len(parts) == 3 else 0
+    except ValueError:
+        raise InputError(f"--train-extra {text}: FRAMES and SEED are whole numbers") from None
+    if frames < 2:
+        raise InputError(f"--train-extra {text}: need at least 2 frames")
+    name = f"extra-{parts[0]}-{seed}"
+    motion = motion_from_spec(MotionSpec(name, parts[0], frames, seed=seed), config)
+    log = partial(print, file=sys.stderr, flush=True)
+    sim = simulate_cached(project, config, motion, log)[0]
+    joints, root_rot = joint2coarse_inputs(motion)
+    return Joint2CoarseClip(joints, root_rot, sim.positions, name=name)
 
 
 def main() -> None:
@@ -116,6 +146,11 @@ def main() -> None:
         "--train-on", nargs="+", default=[], metavar="NAME",
         help="validation motions to train on too (names or shell patterns), scored no more: "
         "what training on part of the validation split is worth to the rest of it",
+    )  # fmt: skip
+    ap.add_argument(
+        "--train-extra", nargs="+", default=[], metavar="KIND:FRAMES[:SEED]",
+        help="procedural clips the project does not hold to train on too (e.g. squat:540), "
+        "simulated with the project's settings (cached as the realisations are)",
     )  # fmt: skip
     ap.add_argument(
         "--without", nargs="+", default=[], metavar="NAME",
@@ -202,6 +237,11 @@ def main() -> None:
         for name in again_of
     ]
     clips += [clip for _, clip in again]
+    try:
+        extras = [_extra(project, config, text) for text in args.train_extra]
+    except InputError as err:
+        ap.error(str(err))
+    clips += extras
     # how far each clip's second outcome is from its first: what one simulation leaves open
     apart = [vertex_errors(clip.proxy, firsts[name]).mean_mm for name, clip in again]
     if args.fit_validation:
@@ -252,6 +292,7 @@ def main() -> None:
         "trained_on_test": fitted, "realisations": args.realisations,
         "realisations_of": again_of if args.realisations else [],
         "realisations_from_first_mm": float(np.mean(apart)) if apart else None,
+        "train_extra": [c.name for c in extras],
         "ablations": ablations,
         "runs": runs, "mean_over_seeds": summary,
     }  # fmt: skip
@@ -278,6 +319,8 @@ def main() -> None:
             )
             + f" too, {np.mean(apart):.1f} mm mean from the clips' own"
         )
+    if extras:
+        print(f"trained on procedural clips {', '.join(c.name for c in extras)} too")
     if left_out:
         print(f"left out of training: {', '.join(left_out)} ({len(clips)} motions trained on)")
     for run in runs:

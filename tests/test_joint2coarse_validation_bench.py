@@ -97,3 +97,22 @@ def test_without_and_fit_validation(smoke_project):
     assert bad.returncode == 2 and "--distance-vertices 0 must be at least 1" in bad.stderr
     short = _run(smoke_project, "--long-lags")  # the smoke preset's 34-frame window
     assert short.returncode == 2 and "--long-lags reads 32 samples back" in short.stderr
+
+
+def test_train_extra(smoke_project, tmp_path, monkeypatch):
+    """--train-extra squat:24: a procedural clip the project does not hold, made as a library clip
+    and simulated into the scratch cache (not the project), trained on beside the library."""
+    cache = tmp_path / "xdg-cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    in_project = sorted(smoke_project.rglob("cache.npz"))
+    out = _run(smoke_project, *SHORT_STEPS, "--train-extra", "squat:24:1", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert result["train_extra"] == ["extra-squat-1"]
+    (motion,) = result["splits"]["validation"]
+    assert result["runs"][0]["validation"]["motions"][motion]["mean_mm"] > 0
+    assert len(list(cache.rglob("cache.npz"))) == 1
+    assert sorted(smoke_project.rglob("cache.npz")) == in_project
+    for bad, says in (("nothing:10", "KIND one of"), ("squat:x", "whole numbers")):
+        refused = _run(smoke_project, "--train-extra", bad)
+        assert refused.returncode == 2 and says in refused.stderr, refused.stderr
