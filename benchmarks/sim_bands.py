@@ -9,7 +9,7 @@ Reads each ``sim/CLIP-proxy/cache.npz`` (its pinned vertices), the proxy as dres
 (``proxy/positions.obj``) and the clip's motion, whose canonical joints give the pelvis (the
 hips joint, Spine1 and the feet; within 2 mm of the body as simulated). The hem at end is
 measured over the clip's last half second only where the body stands all that while
-(:func:`core.sim.sanity.standing`); otherwise it is n/a, with the pelvis's largest tilt, the
+(:func:`core.sim.sanity.not_standing`); otherwise it is n/a, with the pelvis's largest tilt, the
 hips' least height (a share of the rest pose's) and the feet's widest stance over that half
 second, which say why.
 """
@@ -55,7 +55,7 @@ def measure(project: Project, clips: list[str] | None = None) -> list[dict]:
             raise InputError(f"no simulated proxy for {', '.join(missing)}", project.root / "sim")
     rows = []
     for clip in clips or found:
-        folder = project.path(f"sim/{clip}-proxy", "cache.npz").parent
+        folder = project.stage_dir("sim") / f"{clip}-proxy"
         cache = load_cache(folder / "cache.npz")
         if cache.positions.shape[1] != proxy.num_vertices:
             raise InputError(

@@ -17,7 +17,7 @@ from core.errors import InputError
 from core.fileio import atomic_open, write_json
 from core.progress import StageEta
 from core.project import RECORD_NAME, Project
-from core.sim.sanity import STANDING_FEET_M, STANDING_HEIGHT_SHARE, STANDING_TILT_DEG
+from core.sim.sanity import not_standing
 from pipeline.config import (
     Log,
     PipelineConfig,
@@ -910,19 +910,10 @@ def _weights_metrics_markdown(motions: dict, first: dict) -> list[str]:
 def _hem_end_cell(sim: dict) -> str:
     """The simulation table's "hem at end" cell of one clip's report: the figure, or n/a with
     what ruled it out (the body not standing over the clip's last half second)."""
-    rise, tilt, height = (
-        sim.get(k) for k in ("hem_rise_end_mm", "end_tilt_deg", "end_hips_height")
-    )
-    if rise is not None:
-        return f"{rise:.0f}"
-    if tilt is not None and tilt > STANDING_TILT_DEG:
-        return f"n/a (pelvis {tilt:.0f} deg)"
-    if height is not None and height < STANDING_HEIGHT_SHARE:
-        return f"n/a (hips at {height:.2f})"
-    feet = sim.get("end_feet_m")
-    if feet is not None and feet > STANDING_FEET_M:
-        return f"n/a (feet {feet:.2f} m apart)"
-    return "n/a"
+    if sim.get("hem_rise_end_mm") is not None:
+        return f"{sim['hem_rise_end_mm']:.0f}"
+    end = [sim.get(k) for k in ("end_tilt_deg", "end_hips_height", "end_feet_m")]
+    return "n/a" if None in end else f"n/a ({not_standing(*end)})"
 
 
 def _ground_truth_markdown(report: dict) -> list[str]:

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import json
 from functools import partial
+from pathlib import Path
+
+import pytest
 
 from tests.conftest import run_benchmark
 
@@ -18,11 +21,18 @@ SHORT_STEPS = (
 _run = partial(run_benchmark, "joint2coarse_validation.py")
 
 
-def test_realisations(smoke_project, tmp_path, monkeypatch):
-    """--realisations 1: every training clip trains on a second simulation of its motion too (the
-    proxy moved 10 um), simulated into the scratch cache, not into the project."""
+@pytest.fixture
+def scratch_cache(tmp_path, monkeypatch) -> Path:
+    """The scratch cache the bench simulates into (``XDG_CACHE_HOME``), empty, this test's own."""
     cache = tmp_path / "xdg-cache"
     monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    return cache
+
+
+def test_realisations(smoke_project, scratch_cache):
+    """--realisations 1: every training clip trains on a second simulation of its motion too (the
+    proxy moved 10 um), simulated into the scratch cache, not into the project."""
+    cache = scratch_cache
     in_project = sorted(smoke_project.rglob("cache.npz"))
     out = _run(smoke_project, *SHORT_STEPS, "--realisations", "1", "--json")
     assert out.returncode == 0, out.stderr
@@ -99,11 +109,10 @@ def test_without_and_fit_validation(smoke_project):
     assert short.returncode == 2 and "--long-lags reads 32 samples back" in short.stderr
 
 
-def test_train_extra(smoke_project, tmp_path, monkeypatch):
+def test_train_extra(smoke_project, scratch_cache):
     """--train-extra squat:24: a procedural clip the project does not hold, made as a library clip
     and simulated into the scratch cache (not the project), trained on beside the library."""
-    cache = tmp_path / "xdg-cache"
-    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    cache = scratch_cache
     in_project = sorted(smoke_project.rglob("cache.npz"))
     out = _run(smoke_project, *SHORT_STEPS, "--train-extra", "squat:24:1", "--json")
     assert out.returncode == 0, out.stderr

@@ -27,10 +27,10 @@ from core.sim.sanity import (
     hem_lift,
     hem_radius,
     hem_radius_ratio,
+    not_standing,
     pelvis_tilt,
     perturbed,
     rise_over_hips,
-    standing,
 )
 from core.sim.simulate import simulate
 from tests.sim_helpers import frustum_skirt, spin_motion
@@ -185,14 +185,14 @@ def test_pelvis_tilt_and_standing_on_known_poses():
     joints[2, 0, 1] -= 0.3  # crouched: hips 0.55 m above the feet
     joints[2, 1, 1] -= 0.3
     pelvis = Pelvis.of(joints, REST_JOINTS)
-    wide = pelvis.feet.copy()
-    wide[0, :, 0] = [0.4, -0.4]
-    assert not standing(pelvis.hips, pelvis.up, wide, 0.85)[0]
     assert pelvis.standing_height == pytest.approx(0.85)
-    np.testing.assert_allclose(pelvis_tilt(pelvis.up), [0.0, 60.0, 0.0], atol=1e-9)
-    assert standing(pelvis.hips, pelvis.up, pelvis.feet, 0.85).tolist() == [True, False, False]
-    with pytest.raises(InputError):
-        standing(pelvis.hips, pelvis.up, pelvis.feet[:2], 0.85)
+    tilt = pelvis_tilt(pelvis.up)
+    np.testing.assert_allclose(tilt, [0.0, 60.0, 0.0], atol=1e-9)
+    height = (pelvis.hips[:, 1] - pelvis.feet[:, :, 1].min(axis=1)) / pelvis.standing_height
+    feet = np.linalg.norm(pelvis.feet[:, 0] - pelvis.feet[:, 1], axis=1)
+    verdicts = [not_standing(*figures) for figures in zip(tilt, height, feet)]
+    assert verdicts == [None, "pelvis 60 deg", "hips at 0.65"]
+    assert not_standing(0.0, 1.0, 0.8) == "feet 0.80 m apart"  # a wide stance
     with pytest.raises(InputError):
         Pelvis.of(joints[:, :3], REST_JOINTS)
 

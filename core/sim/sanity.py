@@ -10,9 +10,9 @@ the sanity tests and by ``dng bench sim``:
 * :func:`band_height` / :func:`rise_over_hips`: a band of the garment's (the waistband's, the
   hem's) height along the pelvis's up axis above the hips joint, and its rise against frame 0
   (a skirt riding up after a squat or a kick);
-* :func:`standing`: the frames at which the body stands (pelvis near upright, hips near their
-  standing height), where a hem's height along the pelvis says whether the skirt rode up and
-  not how the body bends or crouches;
+* :func:`not_standing`: whether the body stood through a while (pelvis near upright, hips
+  near their standing height, feet not wide apart), where a hem's height along the pelvis says
+  whether the skirt rode up and not how the body bends or crouches;
 * :func:`after_legs_close`: a measure (the hem's rise) a while after each time the feet come
   together and stay (the hem of a real skirt falls back within a second);
 * :func:`band_measures`: a simulation report's waistband and hem figures
@@ -155,7 +155,7 @@ def rise_over_hips(
     return height - height[0]
 
 
-#: When the body counts as standing (:func:`standing`): the pelvis's up axis at most this many
+#: When the body counts as standing (:func:`not_standing`): the pelvis's up axis at most this many
 #: degrees from the vertical, the hips at least this share of the rest pose's height above the
 #: lower foot, and the feet at most this far apart (metres). Over the last half second of quick
 #: run q72's clips, a walk's or an idle's pelvis tilts 3 to 13 degrees, its hips stay at 0.88 to
@@ -175,32 +175,23 @@ def pelvis_tilt(up: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def standing(
-    hips: np.ndarray, up: np.ndarray, feet: np.ndarray, standing_height: float
-) -> np.ndarray:
-    """The frames at which the body stands: (T,) bool, the pelvis's up axis within
-    ``STANDING_TILT_DEG`` of the vertical (+Y) and the hips joint at least
-    ``STANDING_HEIGHT_SHARE`` x ``standing_height`` (metres, the rest pose's) above the lower
-    foot joint, and the feet at most ``STANDING_FEET_M`` apart. A hem's height along the pelvis
-    measures a skirt riding up only there: bent over, a hem hanging straight down sits high
-    along the tilted pelvis; crouched, the thighs lift it; in a wide stance, the legs spread it.
-
-    hips (T, 3) the hips joint; up (T, 3) the pelvis's up direction (any length); feet
-    (T, 2, 3) the left and right foot joints.
-    """
-    h = np.asarray(hips, np.float64)
-    u = np.asarray(up, np.float64)
-    f = np.asarray(feet, np.float64)
-    if h.ndim != 2 or h.shape[1] != 3 or u.shape != h.shape or f.shape != (len(h), 2, 3):
-        raise InputError(
-            f"need hips and up (T, 3) and feet (T, 2, 3): got {h.shape}, {u.shape}, {f.shape}"
-        )
-    if not (np.isfinite(standing_height) and standing_height > 0):
-        raise InputError(f"need a standing height > 0, got {standing_height}")
-    upright = pelvis_tilt(u) <= STANDING_TILT_DEG
-    high = h[:, 1] - f[:, :, 1].min(axis=1) >= STANDING_HEIGHT_SHARE * standing_height
-    narrow = np.linalg.norm(f[:, 0] - f[:, 1], axis=1) <= STANDING_FEET_M
-    return upright & high & narrow
+def not_standing(tilt_deg: float, hips_height: float, feet_m: float) -> str | None:
+    """What rules out that a body stood all through a while, from its worst figures over it:
+    the pelvis's largest tilt from the vertical (degrees), the hips' least height above the
+    lower foot as a share of the rest pose's, the feet's widest stance (metres). None when it
+    stood: the tilt at most ``STANDING_TILT_DEG``, the hips at least ``STANDING_HEIGHT_SHARE``,
+    the feet at most ``STANDING_FEET_M`` apart. Else ``"pelvis 67 deg"``, ``"hips at 0.41"`` or
+    ``"feet 0.78 m apart"`` (the first that fails). A hem's height along the pelvis measures a
+    skirt riding up only where the body stands: bent over, a hem hanging straight down sits
+    high along the tilted pelvis; crouched, the thighs lift it; in a wide stance, the legs
+    spread it."""
+    if tilt_deg > STANDING_TILT_DEG:
+        return f"pelvis {tilt_deg:.0f} deg"
+    if hips_height < STANDING_HEIGHT_SHARE:
+        return f"hips at {hips_height:.2f}"
+    if feet_m > STANDING_FEET_M:
+        return f"feet {feet_m:.2f} m apart"
+    return None
 
 
 def after_legs_close(
@@ -285,7 +276,7 @@ class BandMeasures:
     hem_rise_end_mm : the hem's height along the pelvis above the hips (:func:`band_height`)
         over the clip's last ``end_frames``, against the garment's as dressed on the rest pose:
         a hem that rode up and stayed. Only where the body stands all that while
-        (:func:`standing`), else None (and as for the ratio). A hem hanging settled on a
+        (:func:`not_standing`), else None (and as for the ratio). A hem hanging settled on a
         standing body reads a little below 0: it sags from its dressed shape
     end_tilt_deg : the pelvis's largest tilt from the vertical over those frames (as the ratio)
     end_hips_height : the hips' least height above the lower foot over those frames, as a share
@@ -332,7 +323,7 @@ def band_measures(
         height = hips[end, 1] - feet[end, :, 1].min(axis=1)
         height_end = float(height.min() / pelvis.standing_height)
         feet_end = float(np.linalg.norm(feet[end, 0] - feet[end, 1], axis=1).max())
-        if standing(hips[end], up[end], feet[end], pelvis.standing_height).all():
+        if not_standing(tilt_end, height_end, feet_end) is None:
             rest = band_height(dressed, hem, pelvis.rest_hips[None], pelvis.rest_up[None])[0]
             rise_end = 1e3 * float(band_height(p, hem, hips, up)[end].mean() - rest)
     return BandMeasures(flare, waist, rise_end, tilt_end, height_end, feet_end)
