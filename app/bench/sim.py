@@ -279,6 +279,7 @@ def run(args: argparse.Namespace) -> int:
                     "strain_limit": report.strain_limit,
                     "penetration_p99_mm": round(report.penetration_p99_mm, 2),
                     "retried_frames": list(report.retried_frames),
+                    "refined_frames": list(report.refined_frames),
                     "device": report.device,
                     **floor,
                 }

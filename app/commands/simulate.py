@@ -282,7 +282,8 @@ def run(args: argparse.Namespace) -> int:
         f"{report.ms_per_frame:.0f} ms/frame on {report.device}, "
         f"strain max {report.strain_max:.3f} (limit {report.strain_limit}), "
         f"penetration mean {report.penetration_mean_mm:.3f} mm, "
-        f"retried frames {list(report.retried_frames)}",
+        f"retried frames {list(report.retried_frames)}, "
+        f"refined frames {list(report.refined_frames)}",
     )
 
 

@@ -192,6 +192,12 @@ class SimConfig:
     """Body-contact stiffness, N/m."""
     max_retries: int = 2
     """Times a frame that blows up is retried, each with twice the steps, before giving up."""
+    retry_depth: float | None = 0.005
+    """A frame that leaves a free vertex deeper than this (metres) inside the body's capsules,
+    and deeper than any was at the frame's start, is re-run with twice the steps (up to
+    ``max_retries`` times; the finest attempt is kept, not an error): a limb that moved through
+    the cloth in one step. Only those frames pay. ``None``: never (docs/decisions.md, "A fast
+    limb through the hem")."""
     blowup_strain: float = 5.0
     """A frame whose largest edge strain passes this multiple of the fabric's ``max_strain``
     counts as blown up (numerical blow-ups give strains of several times the rest length; a
@@ -234,6 +240,7 @@ class SimConfig:
             "contact_gap": self.contact_gap >= 0,
             "damping": self.damping >= 0,
             "max_retries": self.max_retries >= 0,
+            "retry_depth": self.retry_depth is None or self.retry_depth >= 0,
             "max_speed": self.max_speed > 0,
             "blowup_strain": self.blowup_strain >= 1,
         }

@@ -13,7 +13,9 @@ same skirt at 10 steps per frame.
 
 Every clip frame is checked before it is kept (finite, speed, edge strain); a frame that fails
 is re-run from its start with twice the steps (``max_retries`` times) before
-:class:`SimulationError` stops the run. Nothing is written by this module: the caller saves
+:class:`SimulationError` stops the run. A frame that leaves the cloth deeper inside the body
+than ``SimConfig.retry_depth`` (and deeper than at its start: a limb moved through it within
+one step) is re-run finer the same way, and its finest attempt is kept. Nothing is written by this module: the caller saves
 the returned :class:`~core.sim.cache.SimCache`, which therefore never holds garbage.
 
 On CPU, warp kernels run serially, so the same inputs give bit-identical caches. On CUDA the
@@ -162,6 +164,9 @@ class SimReport:
     wall_s: float
     retried_frames: tuple = ()
     """Clip frames (negative: lead-in chunks) that blew up once and were re-run finer."""
+    refined_frames: tuple = ()
+    """Clip frames (negative: lead-in chunks) re-run finer, not blown up, because a limb went
+    through the cloth within one step (``SimConfig.retry_depth``)."""
     strain_max: float = 0.0
     """Largest edge stretch (l - l0) / l0 over all edges and frames (what the fabric limits)."""
     strain_mean: float = 0.0
@@ -196,6 +201,7 @@ class SimReport:
     def as_dict(self) -> dict:
         d = asdict(self)
         d["retried_frames"] = list(self.retried_frames)
+        d["refined_frames"] = list(self.refined_frames)
         d["strain_ok"] = bool(self.strain_max <= self.strain_limit)
         return d
 
@@ -828,9 +834,21 @@ def simulate(
             )
         return None
 
-    def run_chunk(a: int, b: int, label: int) -> bool:
-        """Steps a..b of the drive; retries finer on blow-up. True if retried."""
+    free = np.setdiff1d(np.arange(garment.num_vertices), pins.indices)
+
+    def depth(q: np.ndarray, step: int) -> float:
+        """The deepest free vertex inside the body's capsules at drive step ``step`` (metres)."""
+        ends = pose_capsules(capsules, drive.transforms[step][None])[0]
+        return float(penetration_depths(q[None, free], ends[None], capsules.radii).max(initial=0))
+
+    def run_chunk(a: int, b: int, label: int) -> tuple[bool, bool]:
+        """Steps a..b of the drive; retries finer on blow-up, or where a limb went through the
+        cloth (``config.retry_depth``). Whether it was retried for each of the two."""
         snap = scene.snapshot()
+        blew = deep = False
+        limit = config.retry_depth
+        if limit is not None:
+            limit = max(limit, depth(scene.positions(), a))
         for attempt in range(config.max_retries + 1):
             split = 2**attempt
             if split == 1:
@@ -844,7 +862,12 @@ def simulate(
                         scene.step(m0, m1, drive.dt / split)
             problem = check(scene.positions(), scene.velocities(), b)
             if problem is None:
-                return attempt > 0
+                finer = attempt < config.max_retries and limit is not None
+                if not (finer and depth(scene.positions(), b) > limit):
+                    return blew, deep
+                deep = True
+            else:
+                blew = True
             if attempt < config.max_retries:
                 scene.restore(snap)
         where = f"clip frame {label}" if label >= 0 else "the lead-in from the rest pose"
@@ -858,14 +881,22 @@ def simulate(
         )
 
     retried: list[int] = []
+    refined: list[int] = []
+
+    def chunk(a: int, b: int, label: int) -> None:
+        blew, deep = run_chunk(a, b, label)
+        if blew:
+            retried.append(label)
+        elif deep:
+            refined.append(label)
     frames: list[np.ndarray] = []
     # Lead-in, in chunks of one frame's steps.
     chunk_ends = list(range(n, drive.preroll_steps, n)) + [drive.preroll_steps]
     a = 0
     setup_s = None
     for i, b in enumerate(chunk_ends):
-        if b > a and run_chunk(a, b, -1 - i):
-            retried.append(-1 - i)
+        if b > a:
+            chunk(a, b, -1 - i)
         if setup_s is None:
             setup_s = time.perf_counter() - t_start
         a = b
@@ -877,15 +908,14 @@ def simulate(
         progress(1, drive.num_frames)
     for f in range(1, drive.num_frames):
         a, b = drive.frame_step(f - 1), drive.frame_step(f)
-        if run_chunk(a, b, f):
-            retried.append(f)
+        chunk(a, b, f)
         frames.append(scene.positions())
         if progress:
             progress(f + 1, drive.num_frames)
     clip_s = time.perf_counter() - t_clip
     positions = np.stack(frames).astype(np.float32)
     report = _report(
-        positions, garment, drive, capsules, pins, edges, rest_len, config, retried,
+        positions, garment, drive, capsules, pins, edges, rest_len, config, retried, refined,
         setup_s, clip_s, time.perf_counter() - t_start, str(scene.device), notes,
         _pelvis(mannequin_skeleton(shape), drive),
     )  # fmt: skip
@@ -929,7 +959,7 @@ def _pelvis(skeleton, drive: BodyDrive) -> Pelvis:
 
 def _report(
     positions, garment, drive: BodyDrive, capsules, pins, edges, rest_len, config: SimConfig,
-    retried, setup_s, clip_s, wall_s, device, notes, pelvis,
+    retried, refined, setup_s, clip_s, wall_s, device, notes, pelvis,
 ) -> SimReport:  # fmt: skip
     t = len(positions)
     strain = edge_strain(positions, edges, rest_len)
@@ -951,6 +981,7 @@ def _report(
         ms_per_frame=round(1000.0 * clip_s / max(t - 1, 1), 2),
         wall_s=round(wall_s, 3),
         retried_frames=tuple(retried),
+        refined_frames=tuple(refined),
         strain_max=float(max(strain.max(), 0.0)),
         strain_mean=float(np.maximum(strain, 0.0).mean()),
         strain_p99=float(max(np.percentile(strain, 99), 0.0)),
