@@ -889,6 +889,7 @@ def simulate(
             retried.append(label)
         elif deep:
             refined.append(label)
+
     frames: list[np.ndarray] = []
     # Lead-in, in chunks of one frame's steps.
     chunk_ends = list(range(n, drive.preroll_steps, n)) + [drive.preroll_steps]
