@@ -5,7 +5,7 @@ lifts the hem on the way down, a walk keeps the skirt near the legs, no edge str
 the fabric's limit x 1.5 and no vertex sits deep inside the body. The same checks on the
 built-in skirts and the procedural clips are marked ``slow``, and so are the quick preset's
 proxy on a squat, a kick and a kneel (its waistband holds; its hem falls back within a second
-of the legs closing, in six draws each).
+of the legs closing, in six draws each), and on a run it stays out of the legs.
 """
 
 from __future__ import annotations
@@ -299,7 +299,9 @@ WAIST_RISE_M = 0.05
 #: How far above where it hung the hem may be 1 s after the legs close (metres; issue 55).
 HEM_BACK_M = 0.08
 #: Frames of each clip (seed 0): the squat's wide stance closes at 15.5 s.
-FRAMES = {"squat": 540, "kick": 300, "kneel": 300}
+FRAMES = {"squat": 540, "kick": 300, "kneel": 300, "run": 150}
+#: The most a run's knees may leave the proxy inside a leg (mm), and stretch it.
+RUN_PENETRATION_MM, RUN_STRETCH = 5.0, 0.3
 
 
 @pytest.fixture(scope="module")
@@ -373,3 +375,17 @@ def test_quick_proxy_hem_falls_back_after_a_squat_a_kick_and_a_kneel(quick_proxy
         if rise.max() > HEM_BACK_M:
             high[draw] = np.round(rise, 3).tolist()
     assert not high, f"{kind}: 1 s after the legs closed the hem was up (m, by draw): {high}"
+
+
+@pytest.mark.slow
+def test_quick_proxy_on_a_run_keeps_out_of_the_legs(quick_proxy_runs):
+    # A knee swung through the hem within one step and left it 33 mm inside the shin (stretch
+    # 0.62) before frames a limb went through were run again finer (``retry_depth``), in
+    # every draw tried (docs/decisions.md, "A fast limb through the hem").
+    bad = {}
+    for draw in (None, 1, 2, 3, 4, 5):
+        _, report, *_ = quick_proxy_runs("run", draw)
+        assert report.finite
+        if report.penetration_max_mm > RUN_PENETRATION_MM or report.strain_max > RUN_STRETCH:
+            bad[draw] = (round(report.penetration_max_mm, 1), round(report.strain_max, 3))
+    assert not bad, f"run: (penetration max mm, stretch max) by draw: {bad}"
