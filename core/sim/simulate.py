@@ -15,8 +15,8 @@ Every clip frame is checked before it is kept (finite, speed, edge strain); a fr
 is re-run from its start with twice the steps (``max_retries`` times) before
 :class:`SimulationError` stops the run. A frame that leaves the cloth deeper inside the body
 than ``SimConfig.retry_depth`` (and deeper than at its start: a limb moved through it within
-one step) is re-run finer the same way, and its finest attempt is kept. Nothing is written by this module: the caller saves
-the returned :class:`~core.sim.cache.SimCache`, which therefore never holds garbage.
+one step) is re-run finer the same way, and its finest attempt is kept. Nothing is written by
+this module: the caller saves the returned :class:`~core.sim.cache.SimCache`, which therefore never holds garbage.
 
 On CPU, warp kernels run serially, so the same inputs give bit-identical caches. On CUDA the
 VBD solver is built with run-to-run deterministic atomics; Style3D's CUDA reductions are
