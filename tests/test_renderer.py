@@ -18,6 +18,7 @@ from training.losses import (
     _tap_indices,
     detail_energy,
     detail_energy_l1,
+    gradient_similarity_loss,
     feature_matching,
     gan_d_loss,
     gan_g_loss,
@@ -368,6 +369,26 @@ def test_detail_energy_counts_detail_wherever_it_lies():
     blur, flat = _blurred(x), torch.full_like(x, 0.5)
     assert 0 < float(detail_energy_l1(blur, x)) < float(detail_energy_l1(flat, x))
     assert_close(detail_energy_l1(flat, x), e.mean(), atol=1e-6, what="all detail missing")
+
+
+def test_gradient_similarity_sees_edges_faint_or_strong_and_stays_finite():
+    x = _stripes()
+    assert float(gradient_similarity_loss(x, x)) == 0.0
+    # a constant offset moves no edge
+    assert float(gradient_similarity_loss(x + 0.1, x)) < 1e-6
+    blur, shift, flat = _blurred(x), torch.roll(x, 1, 2), torch.full_like(x, 0.5)
+    assert 0 < float(gradient_similarity_loss(blur, x)) < float(gradient_similarity_loss(flat, x))
+    assert float(gradient_similarity_loss(shift, x)) > 0
+    # a ratio: the same stripes at a tenth of the contrast, against a flat copy, cost about
+    # as much as the full stripes do (within the constant's share at that contrast)
+    faint = 0.5 + (x - 0.5) * 0.1
+    strong_cost = float(gradient_similarity_loss(torch.full_like(x, 0.5), x))
+    faint_cost = float(gradient_similarity_loss(torch.full_like(x, 0.5), faint))
+    assert faint_cost > 0.5 * strong_cost
+    # flat images (the backdrop) give finite gradients: no root of zero
+    pred = torch.full_like(x, 0.3).requires_grad_(True)
+    gradient_similarity_loss(pred, torch.full_like(x, 0.3)).backward()
+    assert torch.isfinite(pred.grad).all()
 
 
 def test_gan_and_feature_matching_losses():

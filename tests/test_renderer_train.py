@@ -53,14 +53,22 @@ def test_the_detail_losses_enter_the_loss_with_their_weights(data, tmp_path):
         steps=4, log_every=2, w_gan=0.0, w_fm=0.0, w_perceptual=0.0, w_pyramid=0.0, w_detail=0.0
     )
     res = train_renderer(
-        data, tmp_path / "on", base.replace(w_pyramid=2.0, w_detail=3.0), progress=False
+        data,
+        tmp_path / "on",
+        base.replace(w_pyramid=2.0, w_detail=3.0, w_gradient=4.0),
+        progress=False,
     )
     for row in _rows(res.log_path):
-        l1, pyr, det = (float(row[k]) for k in ("l1", "pyramid", "detail"))
-        assert pyr > 0 and det > 0
-        assert math.isclose(float(row["loss_g"]), 10 * l1 + 2 * pyr + 3 * det, rel_tol=1e-4)
+        l1, pyr, det, grad = (float(row[k]) for k in ("l1", "pyramid", "detail", "gradient"))
+        assert pyr > 0 and det > 0 and grad > 0
+        assert math.isclose(
+            float(row["loss_g"]), 10 * l1 + 2 * pyr + 3 * det + 4 * grad, rel_tol=1e-4
+        )
     res = train_renderer(data, tmp_path / "off", base, progress=False)
-    assert all(r["pyramid"] == "off" and r["detail"] == "off" for r in _rows(res.log_path))
+    assert all(
+        r["pyramid"] == "off" and r["detail"] == "off" and r["gradient"] == "off"
+        for r in _rows(res.log_path)
+    )
 
 
 def test_training_lowers_the_loss_with_perceptual_on(data, tmp_path):

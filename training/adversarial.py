@@ -13,10 +13,11 @@ One step:
    float32);
 3. the discriminator's loss on ``method.disc_inputs(batch, fake.detach())`` (real and fake
    halves in one pass, its backward);
-4. the generator's loss ``w_l1 L1 + w_pyramid pyramid + w_detail detail + w_perceptual
-   perceptual + w_fm FM + w_gan GAN + extra_weight extra`` against the same (pre-update) discriminator, with its parameters
-   frozen; feature matching compares with the real half's activations of step 3 (pix2pixHD's
-   way: one discriminator pass fewer than a separate pass over the real inputs);
+4. the generator's loss ``w_l1 L1 + w_pyramid pyramid + w_detail detail + w_gradient
+   gradient + w_perceptual perceptual + w_fm FM + w_gan GAN + extra_weight extra`` against the
+   same (pre-update) discriminator, with its parameters frozen; feature matching compares with
+   the real half's activations of step 3 (pix2pixHD's way: one discriminator pass fewer than a
+   separate pass over the real inputs);
 5. a non-finite loss or gradient (on any process, under torchrun) skips the whole step;
    otherwise the discriminator, then the generator step (Adam, fused on CPU and CUDA).
 
@@ -48,13 +49,17 @@ from training.losses import (
     feature_matching,
     gan_d_loss,
     gan_g_loss,
+    gradient_similarity_loss,
     load_perceptual,
     pyramid_l1,
 )
 from training.schedule import lr_scale, set_lr
 
 #: Every loss a step computes, in log order (a trainer's log keeps the ones its columns name).
-LOSSES = ("loss_g", "l1", "pyramid", "detail", "perceptual", "fm", "gan_g", "extra", "loss_d")
+LOSSES = (
+    "loss_g", "l1", "pyramid", "detail", "gradient", "perceptual", "fm", "gan_g", "extra",
+    "loss_d",
+)  # fmt: skip
 
 
 class GanConfig(Protocol):
@@ -71,6 +76,7 @@ class GanConfig(Protocol):
     w_l1: float
     w_pyramid: float
     w_detail: float
+    w_gradient: float
     w_perceptual: float
     w_fm: float
     w_gan: float
@@ -289,12 +295,14 @@ class AdversarialTrainer(AdversarialRun):
         l1 = F.l1_loss(fake, real_t)
         pyramid = pyramid_l1(fake, real_t) if cfg.w_pyramid > 0 else zero
         detail = detail_energy_l1(fake, real_t) if cfg.w_detail > 0 else zero
+        gradient = gradient_similarity_loss(fake, real_t) if cfg.w_gradient > 0 else zero
         perc = self.perceptual(fake, real_t) if self.perceptual is not None else zero
         extra = method.extra_loss(batch, aux) if method.extra_weight > 0 else zero
         loss_g = (
             cfg.w_l1 * l1
             + cfg.w_pyramid * pyramid
             + cfg.w_detail * detail
+            + cfg.w_gradient * gradient
             + cfg.w_perceptual * perc
             + cfg.w_fm * fm
             + cfg.w_gan * gan
@@ -311,7 +319,9 @@ class AdversarialTrainer(AdversarialRun):
             self.scaler_d.update()
         self.scaler_g.step(self.opt_g)
         self.scaler_g.update()
-        values = dict(zip(LOSSES, (loss_g, l1, pyramid, detail, perc, fm, gan, extra, loss_d)))
+        values = dict(
+            zip(LOSSES, (loss_g, l1, pyramid, detail, gradient, perc, fm, gan, extra, loss_d))
+        )
         return {k: float(values[k].detach()) for k in self.losses}
 
     def _finite(self, loss_g: torch.Tensor, loss_d: torch.Tensor) -> bool:
@@ -334,6 +344,7 @@ class AdversarialTrainer(AdversarialRun):
         off = {"fm", "gan_g", "loss_d"} if self.disc is None else set()
         off |= {"pyramid"} if self.config.w_pyramid <= 0 else set()
         off |= {"detail"} if self.config.w_detail <= 0 else set()
+        off |= {"gradient"} if self.config.w_gradient <= 0 else set()
         return off | ({"perceptual"} if self.perceptual is None else set())
 
     def _modules(self) -> dict[str, object | None]:

@@ -1,6 +1,6 @@
 """Losses of the neural renderer: L1, VGG19 perceptual, GAN (hinge or LSGAN), feature matching,
-and two that need no weights and ask for fine detail: a Laplacian-pyramid L1 and a local
-detail-energy L1.
+and three that need no weights and ask for fine detail: a Laplacian-pyramid L1, a local
+detail-energy L1 and a multi-scale gradient-magnitude similarity.
 
 The perceptual loss needs VGG19 weights, which cannot be downloaded here: give the path of a
 torchvision-layout state dict (``torchvision.models.vgg19().state_dict()`` saved with
@@ -21,7 +21,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from core.errors import InputError
-from training.metrics import laplacian_energy, luminance
+from training.metrics import GMSD_C, laplacian_energy, luminance
 
 #: torchvision's VGG19 ("E") layer list: conv widths, 0 for a 2x2 max pool.
 VGG19_CHANNELS: tuple[int, ...] = (
@@ -225,3 +225,38 @@ def detail_energy_l1(pred: torch.Tensor, target: torch.Tensor, window: int = DET
     as the target in each window, wherever in it the detail lies. Per-pixel losses pay a blur
     where an edge's place is uncertain; this one charges for the detail the blur removed."""
     return F.l1_loss(detail_energy(pred, window), detail_energy(target, window))
+
+
+#: Scales of :func:`gradient_similarity_loss`: full, half and quarter resolution.
+GRADIENT_SCALES = 3
+
+
+def _gradient_magnitude(gray: torch.Tensor) -> torch.Tensor:
+    """Prewitt gradient magnitude of (B, 1, H, W) -> (B, 1, H, W) (edges replicated), with a
+    tiny floor under the root so that a flat image has a finite gradient."""
+    k = torch.tensor([[1.0, 0.0, -1.0]] * 3, dtype=gray.dtype, device=gray.device) / 3.0
+    g = F.pad(gray, (1, 1, 1, 1), mode="replicate")
+    gx = F.conv2d(g, k.view(1, 1, 3, 3))
+    gy = F.conv2d(g, k.t().reshape(1, 1, 3, 3))
+    return torch.sqrt(gx**2 + gy**2 + 1e-12)
+
+
+def gradient_similarity_loss(
+    pred: torch.Tensor, target: torch.Tensor, scales: int = GRADIENT_SCALES
+) -> torch.Tensor:
+    """Mean over ``scales`` (the images halved by 2 x 2 averages each time) of 1 - the mean
+    gradient-magnitude similarity of their luminance (Xue et al. 2014's GMS, its constant for
+    [0, 1] images): (B, 3, H, W) twice -> scalar, 0 for the same edges.
+
+    Each pixel's similarity is a ratio, so a faint edge missing or misplaced costs as much as a
+    strong one, and an edge drawn where the target is flat costs as much as one left out: a
+    per-pixel loss pays a blur there, this one does not."""
+    p, t = luminance(pred), luminance(target)
+    loss = pred.new_zeros(())
+    for k in range(scales):
+        if k:
+            p, t = F.avg_pool2d(p, 2), F.avg_pool2d(t, 2)
+        g_p, g_t = _gradient_magnitude(p), _gradient_magnitude(t)
+        gms = (2 * g_p * g_t + GMSD_C) / (g_p**2 + g_t**2 + GMSD_C)
+        loss = loss + (1 - gms).mean()
+    return loss / scales

@@ -108,6 +108,8 @@ class BaselineConfig(PlainConfig):
     """Weight of the Laplacian-pyramid L1 (as the renderer's; 0: the baselines' own losses)."""
     w_detail: float = 0.0
     """Weight of the local detail-energy L1 (as the renderer's; 0: off)."""
+    w_gradient: float = 0.0
+    """Weight of the multi-scale gradient-similarity loss (as the renderer's; 0: off)."""
     w_gan: float = 0.0
     """Weight of the generator's GAN loss (0 and no discriminator for L1-only baselines)."""
     w_fm: float = 0.0
@@ -171,6 +173,7 @@ class BaselineConfig(PlainConfig):
             "w_l1",
             "w_pyramid",
             "w_detail",
+            "w_gradient",
             "w_gan",
             "w_fm",
             "w_perceptual",

@@ -49,7 +49,7 @@ PRESETS: dict[str, dict[str, BaselineConfig]] = {
 CHECKPOINT_FORMAT = "baseline-train/1"
 MODEL_FORMAT = "baseline-model/1"
 LOG_COLUMNS = (
-    "step", "epoch", "loss_g", "l1", "pyramid", "detail", "perceptual", "fm", "gan_g", "extra",
+    "step", "epoch", "loss_g", "l1", "pyramid", "detail", "gradient", "perceptual", "fm", "gan_g", "extra",
     "loss_d", "skipped", "seconds",
 )  # fmt: skip
 

@@ -103,6 +103,10 @@ class RendererConfig(PlainConfig):
     fine detail as the ground truth in each 8 px window, wherever in it. The per-pixel losses
     alone drew a blur where a tier's edge is uncertain (detail 0.61 of the ground truth's on
     validation, 0.83 with this). Not in the paper; 0 in the ``paper`` preset."""
+    w_gradient: float = 0.0
+    """Weight of the multi-scale gradient-magnitude similarity
+    (:func:`training.losses.gradient_similarity_loss`): each edge of the ground truth, faint or
+    strong, in its place. Not in the paper; 0 in the ``paper`` preset."""
     w_perceptual: float = 10.0
     """Weight of the perceptual loss."""
     w_fm: float = 5.0
@@ -194,7 +198,7 @@ class RendererConfig(PlainConfig):
         if not (isinstance(self.alpha_prior, (int, float)) and math.isfinite(self.alpha_prior)):
             raise InputError(f"renderer config alpha_prior={self.alpha_prior!r} must be finite")
         for name in (
-            "w_l1", "w_pyramid", "w_detail", "w_perceptual", "w_fm", "w_gan", "w_texture",
+            "w_l1", "w_pyramid", "w_detail", "w_gradient", "w_perceptual", "w_fm", "w_gan", "w_texture",
             "lr_g", "lr_d",
         ):  # fmt: skip
             v = getattr(self, name)
@@ -278,6 +282,7 @@ PRESETS: dict[str, RendererConfig] = {
         blend_output=False,
         w_pyramid=0.0,
         w_detail=0.0,
+        w_gradient=0.0,
         lr_g=1e-4,
         lr_decay_from=1.0,
         texture_lr_scale=1.0,

@@ -55,7 +55,7 @@ MODEL_NAME = "renderer.pt"
 LOG_NAME = "renderer_loss.csv"
 PREVIEW_DIR = "previews"
 LOG_COLUMNS = (
-    "step", "epoch", "loss_g", "l1", "pyramid", "detail", "perceptual", "fm", "gan_g", "loss_d",
+    "step", "epoch", "loss_g", "l1", "pyramid", "detail", "gradient", "perceptual", "fm", "gan_g", "loss_d",
     "skipped", "seconds",
 )  # fmt: skip
 #: What a run trains: everything; (background fine-tuning) the last decoder layers, the
