@@ -21,7 +21,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from core.errors import InputError
-from training.metrics import GMSD_C, laplacian_energy, luminance
+from training.metrics import gradient_magnitude, gradient_similarity, laplacian_energy, luminance
 
 #: torchvision's VGG19 ("E") layer list: conv widths, 0 for a 2x2 max pool.
 VGG19_CHANNELS: tuple[int, ...] = (
@@ -232,13 +232,9 @@ GRADIENT_SCALES = 3
 
 
 def _gradient_magnitude(gray: torch.Tensor) -> torch.Tensor:
-    """Prewitt gradient magnitude of (B, 1, H, W) -> (B, 1, H, W) (edges replicated), with a
-    tiny floor under the root so that a flat image has a finite gradient."""
-    k = torch.tensor([[1.0, 0.0, -1.0]] * 3, dtype=gray.dtype, device=gray.device) / 3.0
-    g = F.pad(gray, (1, 1, 1, 1), mode="replicate")
-    gx = F.conv2d(g, k.view(1, 1, 3, 3))
-    gy = F.conv2d(g, k.t().reshape(1, 1, 3, 3))
-    return torch.sqrt(gx**2 + gy**2 + 1e-12)
+    """:func:`training.metrics.gradient_magnitude` of (B, 1, H, W) -> (B, 1, H, W): the edges
+    replicated, and a tiny floor under the root so that a flat image has a finite gradient."""
+    return gradient_magnitude(F.pad(gray, (1, 1, 1, 1), mode="replicate"), eps=1e-12)
 
 
 def gradient_similarity_loss(
@@ -257,6 +253,5 @@ def gradient_similarity_loss(
         if k:
             p, t = F.avg_pool2d(p, 2), F.avg_pool2d(t, 2)
         g_p, g_t = _gradient_magnitude(p), _gradient_magnitude(t)
-        gms = (2 * g_p * g_t + GMSD_C) / (g_p**2 + g_t**2 + GMSD_C)
-        loss = loss + (1 - gms).mean()
+        loss = loss + (1 - gradient_similarity(g_p, g_t)).mean()
     return loss / scales

@@ -245,12 +245,22 @@ def _inner(mask: torch.Tensor | None) -> torch.Tensor | None:
     return None if mask is None else mask[:, :, 1:-1, 1:-1]
 
 
-def gradient_magnitude(gray: torch.Tensor) -> torch.Tensor:
-    """Prewitt gradient magnitude of (N, 1, H, W) -> (N, 1, H - 2, W - 2) (inner pixels)."""
+def gradient_magnitude(gray: torch.Tensor, eps: float = 0.0) -> torch.Tensor:
+    """Prewitt gradient magnitude of (N, 1, H, W) -> (N, 1, H - 2, W - 2) (inner pixels).
+
+    ``eps`` goes under the root: a loss that back-propagates through a flat image needs it
+    above 0 (the root's derivative is infinite at 0); the metric keeps 0."""
     k = torch.tensor([[1.0, 0.0, -1.0]] * 3, dtype=gray.dtype, device=gray.device) / 3.0
     gx = F.conv2d(gray, k.view(1, 1, 3, 3))
     gy = F.conv2d(gray, k.t().reshape(1, 1, 3, 3))
-    return torch.sqrt(gx**2 + gy**2)
+    return torch.sqrt(gx**2 + gy**2 + eps)
+
+
+def gradient_similarity(g_pred: torch.Tensor, g_target: torch.Tensor) -> torch.Tensor:
+    """Xue et al.'s per-pixel gradient magnitude similarity (GMS) of two gradient magnitude
+    maps of one shape, with ``GMSD_C`` for [0, 1] images: 1 where they agree, towards 0 where
+    one has an edge the other lacks."""
+    return (2 * g_pred * g_target + GMSD_C) / (g_pred**2 + g_target**2 + GMSD_C)
 
 
 def gmsd(
@@ -268,9 +278,9 @@ def gmsd(
     (N,) float64; NaN for a frame whose mask is empty
     """
     pred, target, mask = _check_images(pred, target, mask)
-    g_p = gradient_magnitude(luminance(pred))
-    g_t = gradient_magnitude(luminance(target))
-    gms = (2 * g_p * g_t + GMSD_C) / (g_p**2 + g_t**2 + GMSD_C)
+    gms = gradient_similarity(
+        gradient_magnitude(luminance(pred)), gradient_magnitude(luminance(target))
+    )
     inner = _inner(mask)
     mean = _masked_mean(gms, inner).view(-1, 1, 1, 1)
     return torch.sqrt(_masked_mean((gms - mean) ** 2, inner))
