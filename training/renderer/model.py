@@ -370,9 +370,8 @@ class RenderNet(nn.Module):
         if self.readout is not None:
             logits = self.readout(x[:, : self.config.texture_out_channels])
             if self.config.alpha_prior and self.config.blend_output:
-                prior = torch.zeros_like(logits)
-                prior[:, 3:4] = self.config.alpha_prior * self.coverage(x)
-                logits = logits + prior
+                alpha = logits[:, 3:4] + self.config.alpha_prior * self.coverage(x)
+                logits = torch.cat([logits[:, :3], alpha], 1)
             skips = [*skips, logits]
         return z, skips
 
