@@ -916,8 +916,8 @@ def simulate(
     clip_s = time.perf_counter() - t_clip
     positions = np.stack(frames).astype(np.float32)
     report = _report(
-        positions, garment, drive, capsules, pins, edges, rest_len, config, retried, refined,
-        setup_s, clip_s, time.perf_counter() - t_start, str(scene.device), notes,
+        positions, garment, drive, capsules, pins, free, edges, rest_len, config, retried,
+        refined, setup_s, clip_s, time.perf_counter() - t_start, str(scene.device), notes,
         _pelvis(mannequin_skeleton(shape), drive),
     )  # fmt: skip
     params = {
@@ -959,13 +959,12 @@ def _pelvis(skeleton, drive: BodyDrive) -> Pelvis:
 
 
 def _report(
-    positions, garment, drive: BodyDrive, capsules, pins, edges, rest_len, config: SimConfig,
-    retried, refined, setup_s, clip_s, wall_s, device, notes, pelvis,
+    positions, garment, drive: BodyDrive, capsules, pins, free, edges, rest_len,
+    config: SimConfig, retried, refined, setup_s, clip_s, wall_s, device, notes, pelvis,
 ) -> SimReport:  # fmt: skip
     t = len(positions)
     strain = edge_strain(positions, edges, rest_len)
     ends = pose_capsules(capsules, drive.transforms[[drive.frame_step(f) for f in range(t)]])
-    free = np.setdiff1d(np.arange(garment.num_vertices), pins.indices)
     depth = penetration_depths(positions[:, free], ends, capsules.radii)
     bands = band_measures(
         positions, garment.vertices, garment.faces, pins.indices, pelvis,
