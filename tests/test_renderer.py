@@ -167,6 +167,26 @@ def test_texture_readout_draws_the_texture_on_the_proxy_and_nothing_off_it():
     assert without_blend.readout.out_channels == 3
 
 
+def test_a_wider_readout_filters_its_neighbours_and_reaches_one_pixel_past_the_proxy():
+    cfg = PRESETS["tiny"].replace(readout_kernel=3)
+    net = RenderNet(cfg).eval()
+    assert net.readout.weight.shape[-2:] == (3, 3) and PRESETS["tiny"].readout_kernel == 1
+    mask = torch.zeros(1, 1, 9, 9)
+    mask[..., 4, 4] = 1.0  # one proxy pixel
+    uv = torch.full((1, 2, 9, 9), 0.5) * mask
+    motion = torch.rand(1, cfg.motion_channels, 9, 9) * mask
+    with torch.no_grad():
+        net.readout.weight.fill_(1.0)
+        logits = net.encode_with_skips(net.input_features(uv, motion, mask))[1][-1]
+    reach = logits.abs().amax(1)[0] > 0
+    ring = torch.zeros(9, 9, dtype=torch.bool)
+    ring[3:6, 3:6] = True
+    assert torch.equal(reach, ring)  # the 3 x 3 around the proxy pixel, and nothing farther
+    for bad in (2, 0, True):
+        with pytest.raises(InputError, match="readout_kernel"):
+            PRESETS["tiny"].replace(readout_kernel=bad)
+
+
 def test_model_files_from_before_the_readout_load_without_one():
     stored = {k: v for k, v in PRESETS["tiny"].to_dict().items() if k != "texture_readout"}
     assert RendererConfig.from_stored(stored).texture_readout is False

@@ -62,6 +62,11 @@ class RendererConfig(PlainConfig):
     encoder, decoder and refinement, too slowly for a few hundred steps: the garment's detail on
     validation was 0.49 of the ground truth's (docs/decisions.md, "texture_readout"). Not in the
     paper; off in the ``paper`` preset."""
+    readout_kernel: int = 1
+    """Side of the texture readout's conv kernel (odd). 1 reads each pixel's texture sample
+    alone, so whatever the sample aliases (a texel pattern finer than the pixels, seen from a
+    new camera) reaches the image unfiltered; 3 lets the readout filter its neighbours, and
+    reach a pixel past the proxy's edge."""
     background_guide: bool = False
     """Show the decoder the body-only background image, averaged down to each of its scales
     (3 more input channels to each up stage's fuse): the encoder's input is zero off the proxy
@@ -187,6 +192,13 @@ class RendererConfig(PlainConfig):
             not isinstance(s, int) or s < 2 for s in self.texture_sizes
         ):
             raise InputError(f"texture_sizes={self.texture_sizes!r} must be integers >= 2")
+        if isinstance(self.readout_kernel, bool) or not (
+            isinstance(self.readout_kernel, int) and self.readout_kernel > 0
+            and self.readout_kernel % 2
+        ):  # fmt: skip
+            raise InputError(
+                f"renderer config readout_kernel={self.readout_kernel!r} must be an odd integer >= 1"
+            )
         if self.image_size % self.stride:
             raise InputError(
                 f"image_size {self.image_size} must be divisible by 2 ** n_down = {self.stride}"

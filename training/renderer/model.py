@@ -335,7 +335,13 @@ class RenderNet(nn.Module):
         )
         self.refiner = Refiner(config.decoder_features, config.blend_output)
         self.readout = (
-            nn.Conv2d(config.texture_out_channels, 4 if config.blend_output else 3, 1, bias=False)
+            nn.Conv2d(
+                config.texture_out_channels,
+                4 if config.blend_output else 3,
+                config.readout_kernel,
+                padding=config.readout_kernel // 2,
+                bias=False,
+            )
             if config.texture_readout
             else None
         )
