@@ -18,10 +18,10 @@ from training.losses import (
     _tap_indices,
     detail_energy,
     detail_energy_l1,
-    gradient_similarity_loss,
     feature_matching,
     gan_d_loss,
     gan_g_loss,
+    gradient_similarity_loss,
     laplacian_bands,
     load_perceptual,
     pyramid_l1,
@@ -37,7 +37,7 @@ from training.renderer import (
     RenderNet,
     synthetic_scene,
 )
-from training.renderer.model import NeuralTexture, receptive_field
+from training.renderer.model import NeuralTexture, receptive_field, uv_footprint
 
 torch.set_num_threads(1)  # 2 threads on the shared 2-core machine are ~50x slower
 TINY_VGG = (4, 0, 6, 0, 8, 0, 8, 0, 8)
@@ -86,6 +86,53 @@ def test_texture_samples_texel_centres_exactly_and_masks():
     expected[:, 0, 0] = 0
     assert_close(out[0, :2].detach(), expected, atol=1e-6, what="level 0 at texel centres")
     assert float(out[0, :, 0, 0].detach().abs().max()) == 0.0
+
+
+def test_uv_footprint_is_the_step_to_a_neighbour_and_ignores_seams():
+    s = 8
+    rows, cols = torch.meshgrid(torch.arange(s), torch.arange(s), indexing="ij")
+    uv = torch.stack([cols * 0.01, rows * 0.03])[None].float()  # u steps 0.01, v 0.03
+    uv[..., :, 4:] += torch.tensor([0.5, 0.0])[None, :, None, None]  # a seam between columns 3, 4
+    mask = torch.ones(1, 1, s, s)
+    mask[..., 7, :] = 0  # a row off the proxy
+    mask[..., 0, 0] = 0
+    got = uv_footprint(uv, mask)
+    assert got.shape == (1, 1, s, s)
+    on = mask[0, 0] > 0
+    assert_close(got[0, 0][on], torch.full((int(on.sum()),), 0.03), atol=1e-6, what="footprint")
+    assert float(got[0, 0][~on].abs().max()) == 0.0
+    # a pixel alone on the proxy has no neighbour to step to
+    alone = torch.zeros(1, 1, s, s)
+    alone[..., 3, 3] = 1
+    assert float(uv_footprint(uv, alone).abs().max()) == 0.0
+
+
+def test_mipmapped_texture_averages_what_a_pixel_covers_and_reads_texels_as_plain():
+    s = 8
+    plain = NeuralTexture((s,), 1, seed=0)
+    mipped = NeuralTexture((s,), 1, seed=0, mips=2)
+    with torch.no_grad():
+        checker = (torch.arange(s)[:, None] + torch.arange(s)[None]) % 2
+        for t in (plain, mipped):
+            t.levels[0].copy_(checker.float()[None, None])
+    # one pixel per texel: the mipmapped read is the plain one
+    rows, cols = torch.meshgrid(torch.arange(s), torch.arange(s), indexing="ij")
+    uv = torch.stack([(cols + 0.5) / s, 1 - (rows + 0.5) / s])[None].float()
+    mask = torch.ones(1, 1, s, s)
+    assert torch.equal(mipped(uv, mask), plain(uv, mask))
+    # a pixel per 2 x 2 texels: plain bilinear reads the one texel at each pixel's centre (all
+    # 0 here: the checker aliased to black), the mipmap its average over the pixel, 0.5
+    rows, cols = torch.meshgrid(torch.arange(4), torch.arange(4), indexing="ij")
+    uv = torch.stack([(2 * cols + 0.5) / s, 1 - (2 * rows + 0.5) / s])[None].float()
+    mask = torch.ones(1, 1, 4, 4)
+    with torch.no_grad():
+        assert float(plain(uv, mask).abs().max()) == 0.0
+        assert_close(mipped(uv, mask), torch.full((1, 1, 4, 4), 0.5), atol=1e-6, what="mip 1")
+    # gradients reach the finest texels through the halvings
+    mipped(uv, mask).sum().backward()
+    assert float(mipped.levels[0].grad.abs().sum()) > 0
+    with pytest.raises(InputError, match="texture_mips"):
+        PRESETS["tiny"].replace(texture_mips=-1)
 
 
 @pytest.mark.parametrize("name", ["tiny", "cpu"])

@@ -33,6 +33,10 @@ class RendererConfig(PlainConfig):
     """Texels per side of each neural-texture level (sampled bilinearly, concatenated). The
     paper's (512, 256, 128, 64) has more texels than a 128 px image has garment pixels, and its
     sampling backward dominates a CPU step; the ``paper`` preset has it."""
+    texture_mips: int = 0
+    """Box-filtered halvings each texture level may be read from, per pixel by its footprint on
+    the texture, as a mipmap (:class:`training.renderer.model.NeuralTexture`); 0 reads every
+    level bilinearly at one point per pixel. Not in the paper."""
     texture_channels: int = 16
     """Channels per texture level (4 levels x 16 = 64 channels in the paper)."""
     motion_channels: int = MOTION_CHANNELS
@@ -180,6 +184,7 @@ class RendererConfig(PlainConfig):
         for name in (
             "steps",
             "seed",
+            "texture_mips",
             "preview_every",
             "crop_margin",
             "motion_channels",
