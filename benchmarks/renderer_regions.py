@@ -1,7 +1,7 @@
 """Where in the garment region each method's error lies: a diagnosis of the renderers' MSE.
 
 Usage: ``python benchmarks/renderer_regions.py PROJECT [--motion NAME] [--source
-joint2coarse|sim] [--model NAME=FILE ...] [--json]``
+joint2coarse|sim] [--model NAME=FILE ...] [--measure mse|gms] [--json]``
 
 Scores the project's renderer and baselines (and any other model file given with ``--model``,
 such as one kept by ``benchmarks/renderer_validation.py --keep``) on one evaluated motion
@@ -21,6 +21,14 @@ Each figure is the category's summed squared error (mean over RGB) over the numb
 garment-region pixels, so a method's figures add up to its pixel-pooled garment-region MSE
 (the report's is the mean over samples of each sample's MSE, close to it). The backdrop is told
 from the body by the body-only image's difference from its corner pixel.
+
+``--measure gms`` splits the gradient magnitude similarity instead (GMS, the per-pixel map the
+report's GMSD is the standard deviation of, :func:`training.metrics.gmsd`): each method's
+deficit ``1 - GMS`` over the garment region's inner pixels, by whether the ground truth has an
+edge there (its gradient magnitude over :data:`EDGE_GRADIENT`) and whether the proxy covers the
+pixel, each summed over the region's pixel count (so they add up to the mean deficit), beside
+the GMSD. A low GMSD is a deficit spread evenly, not a small one: a method can miss fewer edges
+and still have the larger GMSD, if what it misses it misses all at once.
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ from pipeline.config import project_config, renderer_validation_motion
 from training.baselines import load_for_evaluation
 from training.dataset import GarmentDataset
 from training.evaluate import garment_region
+from training.metrics import gmsd, gradient_magnitude, gradient_similarity, luminance
 
 CATEGORIES = (
     "garment on the proxy, body behind",
@@ -46,6 +55,13 @@ CATEGORIES = (
 )
 #: Summed |RGB difference| from the corner pixel above which the body-only image shows the body.
 BODY_THRESHOLD = 0.05
+#: The :func:`split_gms` classes: the ground truth's edges and flat parts, on the
+#: proxy and off it.
+GMS_CATEGORIES = ("edge, on the proxy", "flat, on the proxy", "edge, off the proxy",
+                  "flat, off the proxy")  # fmt: skip
+#: Gradient magnitude (Prewitt, of the luma in [0, 1]) above which a ground-truth pixel is an edge:
+#: a step of 0.15 in luma across the 3 px filter (a tier's shaded rim against the red).
+EDGE_GRADIENT = 0.05
 
 
 def categories(batch: dict) -> list[torch.Tensor]:
@@ -91,12 +107,57 @@ def split_error(models: dict, data, batch_size: int = 4) -> dict:
     return {"pixels": int(region), "share": share, "methods": methods}
 
 
+def split_gms(models: dict, data, batch_size: int = 4) -> dict:
+    """{"pixels": the garment region's inner pixel count, "share": {GMS category: share of
+    them}, "methods": {name: {category: summed 1 - GMS / pixels, "total": their sum (the mean
+    deficit), "gmsd": the mean over samples of each one's GMSD, as the report's}}}."""
+    deficit = {name: torch.zeros(len(GMS_CATEGORIES), dtype=torch.float64) for name in models}
+    scores = {name: [] for name in models}
+    count = torch.zeros(len(GMS_CATEGORIES), dtype=torch.float64)
+    for start in range(0, len(data), batch_size):
+        items = [data[i] for i in range(start, min(start + batch_size, len(data)))]
+        batch = torch.utils.data.default_collate(items)
+        target = batch["target"][:, 1]
+        region = garment_region(batch)
+        inner = region[:, 0, 1:-1, 1:-1] > 0
+        proxy = batch["proxy_mask"][:, 1, 0, 1:-1, 1:-1] > 0
+        g_target = gradient_magnitude(luminance(target))[:, 0]
+        edge = g_target > EDGE_GRADIENT
+        masks = [inner & edge & proxy, inner & ~edge & proxy, inner & edge & ~proxy,
+                 inner & ~edge & ~proxy]  # fmt: skip
+        count += torch.tensor([float(m.sum()) for m in masks], dtype=torch.float64)
+        for name, model in models.items():
+            with torch.no_grad():
+                out = model.render(batch).float().clamp(0, 1)
+            gms = gradient_similarity(gradient_magnitude(luminance(out))[:, 0], g_target)
+            deficit[name] += torch.tensor(
+                [float((1 - gms)[m].sum()) for m in masks], dtype=torch.float64
+            )
+            scores[name].append(gmsd(out, target, region))
+    pixels = float(count.sum())
+    if pixels == 0:
+        raise InputError("no garment-region pixel in the motion's samples")
+    methods = {}
+    for name, d in deficit.items():
+        row = {c: float(v / pixels) for c, v in zip(GMS_CATEGORIES, d, strict=True)}
+        row["total"] = float(d.sum() / pixels)
+        frames = torch.cat(scores[name])
+        row["gmsd"] = float(frames[~frames.isnan()].mean())
+        methods[name] = row
+    share = {c: float(v / pixels) for c, v in zip(GMS_CATEGORIES, count, strict=True)}
+    return {"pixels": int(pixels), "share": share, "methods": methods}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("project")
     ap.add_argument("--motion", help="an evaluated motion (default: the validation motion)")
     ap.add_argument("--source", choices=["joint2coarse", "sim"], default="joint2coarse")
     ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
+    ap.add_argument(
+        "--measure", choices=["mse", "gms"], default="mse",
+        help="split the squared error (mse) or the gradient similarity's deficit (gms)",
+    )  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -119,16 +180,20 @@ def main() -> None:
             files[name] = path
         models = {name: load_for_evaluation(path) for name, path in files.items()}
         data = GarmentDataset(project.root, source=args.source, split=motion)
-        out = {"motion": motion, "source": args.source, **split_error(models, data)}
+        split = split_gms if args.measure == "gms" else split_error
+        out = {"motion": motion, "source": args.source, "measure": args.measure,
+               **split(models, data)}  # fmt: skip
     except InputError as exc:
         ap.exit(2, f"renderer_regions: {exc}\n")
     if args.json:
         print(json.dumps(out, indent=1))
         return
     names = list(out["methods"])
-    print(f"{motion}, {args.source} proxy: {out['pixels']} garment-region pixels")
+    what = "1 - GMS" if args.measure == "gms" else "squared error"
+    print(f"{motion}, {args.source} proxy: {out['pixels']} garment-region pixels; {what}")
     print(f"{'where':40s} {'share':>6s} " + " ".join(f"{n[:12]:>12s}" for n in names))
-    for c in (*CATEGORIES, "total"):
+    rows = (*GMS_CATEGORIES, "total", "gmsd") if args.measure == "gms" else (*CATEGORIES, "total")
+    for c in rows:
         share = f"{out['share'][c]:6.3f}" if c in out["share"] else " " * 6
         row = " ".join(f"{out['methods'][n][c]:12.5f}" for n in names)
         print(f"{c:40s} {share} {row}")

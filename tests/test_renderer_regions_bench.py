@@ -91,3 +91,53 @@ def test_a_missing_model_file_exits_2_naming_it(smoke_project):
     )  # fmt: skip
     assert run.returncode == 2 and "/no/such/model.pt" in run.stderr
     assert "model file not found" in run.stderr
+
+
+def _block_sample() -> dict:
+    """One 10 x 10 sample: a red garment in rows 2-7, columns 2-7, on a 0.5 grey backdrop; the
+    proxy in rows 2-8, columns 1-8 (a pixel wider than the garment on three sides)."""
+    bg = torch.full((3, 10, 10), 0.5)
+    garment = torch.zeros(1, 10, 10)
+    garment[0, 2:8, 2:8] = 1
+    proxy = torch.zeros(1, 10, 10)
+    proxy[0, 2:9, 1:9] = 1
+    target = torch.where(garment.bool(), torch.tensor([0.8, 0.1, 0.1])[:, None, None], bg)
+    frames = lambda a: torch.stack([a, a, a])  # noqa: E731
+    return {
+        "target": frames(target),
+        "background": frames(bg),
+        "target_mask": frames(garment),
+        "proxy_mask": frames(proxy),
+    }
+
+
+def test_the_gms_split_finds_missed_edges_and_edges_that_are_not_there():
+    bench = _bench()
+    data = [_block_sample(), _block_sample()]
+
+    def scratched(b):  # the truth, with a dark line across the garment's flat middle
+        out = b["target"][:, 1].clone()
+        out[:, :, 4, 3:7] = 0.0
+        return out
+
+    models = {
+        "truth": _Paints(lambda b: b["target"][:, 1]),
+        "background": _Paints(lambda b: b["background"][:, 1]),
+        "scratched": _Paints(scratched),
+    }
+    out = bench.split_gms(models, data, batch_size=1)
+    assert abs(sum(out["share"].values()) - 1) < 1e-12
+    assert out["share"]["edge, on the proxy"] > 0 and out["share"]["flat, on the proxy"] > 0
+    assert out["share"]["edge, off the proxy"] == 0  # the proxy covers the garment's edges
+    for name, row in out["methods"].items():
+        parts = sum(row[c] for c in bench.GMS_CATEGORIES)
+        assert abs(row["total"] - parts) < 1e-12, name
+    truth = out["methods"]["truth"]
+    assert all(abs(v) < 1e-12 for v in truth.values())
+    # the bare backdrop misses every edge, and is flat where the garment is flat
+    back = out["methods"]["background"]
+    assert back["edge, on the proxy"] > 0.1 and back["flat, on the proxy"] == 0
+    assert back["gmsd"] > 0
+    # a line where the ground truth is flat: a deficit on the flat part
+    scratch = out["methods"]["scratched"]
+    assert scratch["flat, on the proxy"] > 0 and scratch["gmsd"] > 0
