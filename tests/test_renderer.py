@@ -37,7 +37,7 @@ from training.renderer import (
     RenderNet,
     synthetic_scene,
 )
-from training.renderer.model import NeuralTexture, receptive_field, uv_footprint
+from training.renderer.model import NeuralTexture, receptive_field
 
 torch.set_num_threads(1)  # 2 threads on the shared 2-core machine are ~50x slower
 TINY_VGG = (4, 0, 6, 0, 8, 0, 8, 0, 8)
@@ -86,53 +86,6 @@ def test_texture_samples_texel_centres_exactly_and_masks():
     expected[:, 0, 0] = 0
     assert_close(out[0, :2].detach(), expected, atol=1e-6, what="level 0 at texel centres")
     assert float(out[0, :, 0, 0].detach().abs().max()) == 0.0
-
-
-def test_uv_footprint_is_the_step_to_a_neighbour_and_ignores_seams():
-    s = 8
-    rows, cols = torch.meshgrid(torch.arange(s), torch.arange(s), indexing="ij")
-    uv = torch.stack([cols * 0.01, rows * 0.03])[None].float()  # u steps 0.01, v 0.03
-    uv[..., :, 4:] += torch.tensor([0.5, 0.0])[None, :, None, None]  # a seam between columns 3, 4
-    mask = torch.ones(1, 1, s, s)
-    mask[..., 7, :] = 0  # a row off the proxy
-    mask[..., 0, 0] = 0
-    got = uv_footprint(uv, mask)
-    assert got.shape == (1, 1, s, s)
-    on = mask[0, 0] > 0
-    assert_close(got[0, 0][on], torch.full((int(on.sum()),), 0.03), atol=1e-6, what="footprint")
-    assert float(got[0, 0][~on].abs().max()) == 0.0
-    # a pixel alone on the proxy has no neighbour to step to
-    alone = torch.zeros(1, 1, s, s)
-    alone[..., 3, 3] = 1
-    assert float(uv_footprint(uv, alone).abs().max()) == 0.0
-
-
-def test_mipmapped_texture_averages_what_a_pixel_covers_and_reads_texels_as_plain():
-    s = 8
-    plain = NeuralTexture((s,), 1, seed=0)
-    mipped = NeuralTexture((s,), 1, seed=0, mips=2)
-    with torch.no_grad():
-        checker = (torch.arange(s)[:, None] + torch.arange(s)[None]) % 2
-        for t in (plain, mipped):
-            t.levels[0].copy_(checker.float()[None, None])
-    # one pixel per texel: the mipmapped read is the plain one
-    rows, cols = torch.meshgrid(torch.arange(s), torch.arange(s), indexing="ij")
-    uv = torch.stack([(cols + 0.5) / s, 1 - (rows + 0.5) / s])[None].float()
-    mask = torch.ones(1, 1, s, s)
-    assert torch.equal(mipped(uv, mask), plain(uv, mask))
-    # a pixel per 2 x 2 texels: plain bilinear reads the one texel at each pixel's centre (all
-    # 0 here: the checker aliased to black), the mipmap its average over the pixel, 0.5
-    rows, cols = torch.meshgrid(torch.arange(4), torch.arange(4), indexing="ij")
-    uv = torch.stack([(2 * cols + 0.5) / s, 1 - (2 * rows + 0.5) / s])[None].float()
-    mask = torch.ones(1, 1, 4, 4)
-    with torch.no_grad():
-        assert float(plain(uv, mask).abs().max()) == 0.0
-        assert_close(mipped(uv, mask), torch.full((1, 1, 4, 4), 0.5), atol=1e-6, what="mip 1")
-    # gradients reach the finest texels through the halvings
-    mipped(uv, mask).sum().backward()
-    assert float(mipped.levels[0].grad.abs().sum()) > 0
-    with pytest.raises(InputError, match="texture_mips"):
-        PRESETS["tiny"].replace(texture_mips=-1)
 
 
 @pytest.mark.parametrize("name", ["tiny", "cpu"])
@@ -212,26 +165,6 @@ def test_texture_readout_draws_the_texture_on_the_proxy_and_nothing_off_it():
     assert_close(carved[0][:, on], bg[0][:, on], atol=1e-6, what="the background on the proxy")
     without_blend = RenderNet(cfg.replace(blend_output=False))
     assert without_blend.readout.out_channels == 3
-
-
-def test_a_wider_readout_filters_its_neighbours_and_reaches_one_pixel_past_the_proxy():
-    cfg = PRESETS["tiny"].replace(readout_kernel=3)
-    net = RenderNet(cfg).eval()
-    assert net.readout.weight.shape[-2:] == (3, 3) and PRESETS["tiny"].readout_kernel == 1
-    mask = torch.zeros(1, 1, 9, 9)
-    mask[..., 4, 4] = 1.0  # one proxy pixel
-    uv = torch.full((1, 2, 9, 9), 0.5) * mask
-    motion = torch.rand(1, cfg.motion_channels, 9, 9) * mask
-    with torch.no_grad():
-        net.readout.weight.fill_(1.0)
-        logits = net.encode_with_skips(net.input_features(uv, motion, mask))[1][-1]
-    reach = logits.abs().amax(1)[0] > 0
-    ring = torch.zeros(9, 9, dtype=torch.bool)
-    ring[3:6, 3:6] = True
-    assert torch.equal(reach, ring)  # the 3 x 3 around the proxy pixel, and nothing farther
-    for bad in (2, 0, True):
-        with pytest.raises(InputError, match="readout_kernel"):
-            PRESETS["tiny"].replace(readout_kernel=bad)
 
 
 def test_model_files_from_before_the_readout_load_without_one():

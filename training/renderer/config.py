@@ -33,10 +33,6 @@ class RendererConfig(PlainConfig):
     """Texels per side of each neural-texture level (sampled bilinearly, concatenated). The
     paper's (512, 256, 128, 64) has more texels than a 128 px image has garment pixels, and its
     sampling backward dominates a CPU step; the ``paper`` preset has it."""
-    texture_mips: int = 0
-    """Box-filtered halvings each texture level may be read from, per pixel by its footprint on
-    the texture, as a mipmap (:class:`training.renderer.model.NeuralTexture`); 0 reads every
-    level bilinearly at one point per pixel. Not in the paper."""
     texture_channels: int = 16
     """Channels per texture level (4 levels x 16 = 64 channels in the paper)."""
     motion_channels: int = MOTION_CHANNELS
@@ -66,11 +62,6 @@ class RendererConfig(PlainConfig):
     encoder, decoder and refinement, too slowly for a few hundred steps: the garment's detail on
     validation was 0.49 of the ground truth's (docs/decisions.md, "texture_readout"). Not in the
     paper; off in the ``paper`` preset."""
-    readout_kernel: int = 1
-    """Side of the texture readout's conv kernel (odd). 1 reads each pixel's texture sample
-    alone, so whatever the sample aliases (a texel pattern finer than the pixels, seen from a
-    new camera) reaches the image unfiltered; 3 lets the readout filter its neighbours, and
-    reach a pixel past the proxy's edge."""
     background_guide: bool = False
     """Show the decoder the body-only background image, averaged down to each of its scales
     (3 more input channels to each up stage's fuse): the encoder's input is zero off the proxy
@@ -184,7 +175,6 @@ class RendererConfig(PlainConfig):
         for name in (
             "steps",
             "seed",
-            "texture_mips",
             "preview_every",
             "crop_margin",
             "motion_channels",
@@ -197,13 +187,6 @@ class RendererConfig(PlainConfig):
             not isinstance(s, int) or s < 2 for s in self.texture_sizes
         ):
             raise InputError(f"texture_sizes={self.texture_sizes!r} must be integers >= 2")
-        if isinstance(self.readout_kernel, bool) or not (
-            isinstance(self.readout_kernel, int) and self.readout_kernel > 0
-            and self.readout_kernel % 2
-        ):  # fmt: skip
-            raise InputError(
-                f"renderer config readout_kernel={self.readout_kernel!r} must be an odd integer >= 1"
-            )
         if self.image_size % self.stride:
             raise InputError(
                 f"image_size {self.image_size} must be divisible by 2 ** n_down = {self.stride}"

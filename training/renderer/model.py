@@ -26,8 +26,6 @@ concatenate the motion features (:meth:`RenderNet.input_features`), encode frame
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -40,28 +38,19 @@ _SLOPE = 0.2
 class NeuralTexture(nn.Module):
     """A multi-scale learned texture: level k is (C, S_k, S_k), sampled bilinearly.
 
-    With ``mips`` each level is also read from its box-filtered halvings (up to ``mips`` of
-    them, none smaller than 2 texels), trilinearly: each pixel from the halving whose texels
-    match its footprint on the texture (:func:`uv_footprint`), as a mipmap does. Plain
-    bilinear reads a level finer than the pixels at one point per pixel, so what a camera
-    sees of the texel pattern depends on where its pixel centres fall: the speckle a new
-    camera shows.
-
     Parameters
     ----------
     sizes : texels per side of each level (512, 256, 128, 64 in the paper)
     channels : channels per level (16)
     seed : initial values are drawn from ``N(0, 0.01)`` with this seed
-    mips : box-filtered halvings each level may be read from (0: plain bilinear)
     """
 
-    def __init__(self, sizes: tuple[int, ...], channels: int, seed: int = 0, mips: int = 0):
+    def __init__(self, sizes: tuple[int, ...], channels: int, seed: int = 0):
         super().__init__()
         g = torch.Generator().manual_seed(seed)
         self.levels = nn.ParameterList(
             [nn.Parameter(torch.randn(1, channels, s, s, generator=g) * 0.01) for s in sizes]
         )
-        self.mips = mips
 
     @property
     def out_channels(self) -> int:
@@ -81,57 +70,17 @@ class NeuralTexture(nn.Module):
         """
         b = uv.shape[0]
         grid = torch.stack([uv[:, 0] * 2 - 1, 1 - uv[:, 1] * 2], -1)  # (B, H, W, 2)
-        footprint = uv_footprint(uv, mask) if self.mips else None
-
-        def read(t: torch.Tensor) -> torch.Tensor:
-            return F.grid_sample(
+        out = [
+            F.grid_sample(
                 t.expand(b, -1, -1, -1).to(uv.dtype),
                 grid,
                 mode="bilinear",
                 padding_mode="border",
                 align_corners=False,
             )
-
-        out = []
-        for t in self.levels:
-            size = t.shape[-1]
-            count = min(self.mips, max(int(math.log2(size)) - 1, 0))
-            if count:  # (B, 1, H, W); only the halvings some pixel reads are made and read
-                lod = torch.log2((footprint * size).clamp_min(1.0)).clamp_max(count)
-                count = math.ceil(float(lod.max()))
-            if not count:
-                out.append(read(t))
-                continue
-            level, mixed = t, 0.0
-            for m in range(count + 1):
-                if m:
-                    level = F.avg_pool2d(level, 2)
-                mixed = mixed + read(level) * (1 - (lod - m).abs()).clamp_min(0.0)
-            out.append(mixed)
+            for t in self.levels
+        ]
         return torch.cat(out, 1) * mask
-
-
-def uv_footprint(uv: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """How far the UVs move from a pixel to its neighbour (UV units per pixel, the longer of
-    the two image axes): (B, 2, H, W), mask (B, 1, H, W) -> (B, 1, H, W), 0 off the proxy.
-
-    Along each axis it is the smaller of the steps to the two neighbours that are on the proxy
-    too, so a UV seam (a jump on one side) does not count; a pixel with no such neighbour on an
-    axis has 0 there."""
-    on = mask > 0
-
-    def along(dim: int) -> torch.Tensor:
-        step = torch.linalg.vector_norm(uv.diff(dim=dim), dim=1, keepdim=True)
-        both = on.narrow(dim, 1, on.shape[dim] - 1) & on.narrow(dim, 0, on.shape[dim] - 1)
-        step = step.masked_fill(~both, float("inf"))
-        # the step to the next pixel, and to the previous one (F.pad's order: W's sides, H's)
-        ahead, behind = ([0, 1, 0, 0], [1, 0, 0, 0]) if dim == 3 else ([0, 0, 0, 1], [0, 0, 1, 0])
-        near = torch.minimum(
-            F.pad(step, ahead, value=float("inf")), F.pad(step, behind, value=float("inf"))
-        )
-        return near.masked_fill(near.isinf(), 0.0)
-
-    return torch.maximum(along(3), along(2)) * on
 
 
 def texture_colour_loss(
@@ -369,9 +318,7 @@ class RenderNet(nn.Module):
     def __init__(self, config: RendererConfig):
         super().__init__()
         self.config = config
-        self.texture = NeuralTexture(
-            config.texture_sizes, config.texture_channels, config.seed, config.texture_mips
-        )
+        self.texture = NeuralTexture(config.texture_sizes, config.texture_channels, config.seed)
         self.encoder = Encoder(
             config.in_channels, config.base_width, config.max_width, config.n_down
         )
@@ -388,13 +335,7 @@ class RenderNet(nn.Module):
         )
         self.refiner = Refiner(config.decoder_features, config.blend_output)
         self.readout = (
-            nn.Conv2d(
-                config.texture_out_channels,
-                4 if config.blend_output else 3,
-                config.readout_kernel,
-                padding=config.readout_kernel // 2,
-                bias=False,
-            )
+            nn.Conv2d(config.texture_out_channels, 4 if config.blend_output else 3, 1, bias=False)
             if config.texture_readout
             else None
         )

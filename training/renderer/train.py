@@ -137,7 +137,6 @@ def _architecture(config: RendererConfig) -> dict:
         "texture_sizes", "texture_channels", "motion_channels", "use_motion", "base_width",
         "max_width", "n_down", "decoder_features", "background_width", "disc_width",
         "skip_connections", "blend_output", "use_temporal", "texture_readout", "background_guide",
-        "readout_kernel", "texture_mips",
     )  # fmt: skip
     d = config.to_dict()
     return {k: d[k] for k in keep}
