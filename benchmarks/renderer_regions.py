@@ -79,32 +79,48 @@ def categories(batch: dict) -> list[torch.Tensor]:
     ]
 
 
+def renders(models: dict, data, batch_size: int = 4):
+    """Each collated batch of ``data`` with every method's render of its frame t: yields
+    (batch, {name: (B, 3, H, W) float in [0, 1]})."""
+    for start in range(0, len(data), batch_size):
+        items = [data[i] for i in range(start, min(start + batch_size, len(data)))]
+        batch = torch.utils.data.default_collate(items)
+        with torch.no_grad():
+            yield batch, {n: m.render(batch).float().clamp(0, 1) for n, m in models.items()}
+
+
+def _sums(values: torch.Tensor, masks: list[torch.Tensor]) -> torch.Tensor:
+    """(B, H, W) values summed over each (B, H, W) bool mask -> (len(masks),) float64."""
+    return torch.tensor([float(values[m].sum()) for m in masks], dtype=torch.float64)
+
+
+def _split(names: tuple[str, ...], count: torch.Tensor, sums: dict, pixels: float) -> dict:
+    """The split's record: each category's share of ``pixels`` and each method's sums over
+    them, with their total."""
+    if pixels == 0:
+        raise InputError("no garment-region pixel in the motion's samples")
+    methods = {}
+    for name, s in sums.items():
+        row = {c: float(v / pixels) for c, v in zip(names, s, strict=True)}
+        row["total"] = float(s.sum() / pixels)
+        methods[name] = row
+    share = {c: float(v / pixels) for c, v in zip(names, count, strict=True)}
+    return {"pixels": int(pixels), "share": share, "methods": methods}
+
+
 def split_error(models: dict, data, batch_size: int = 4) -> dict:
     """{"pixels": garment-region pixel count, "share": {category: share of them},
     "methods": {name: {category: summed squared error / pixels, "total": their sum}}}."""
     sse = {name: torch.zeros(len(CATEGORIES), dtype=torch.float64) for name in models}
     count = torch.zeros(len(CATEGORIES), dtype=torch.float64)
     region = 0.0
-    for start in range(0, len(data), batch_size):
-        items = [data[i] for i in range(start, min(start + batch_size, len(data)))]
-        batch = torch.utils.data.default_collate(items)
+    for batch, outs in renders(models, data, batch_size):
         masks = categories(batch)
         region += float((garment_region(batch)[:, 0] > 0).sum())
-        count += torch.tensor([float(m.sum()) for m in masks], dtype=torch.float64)
-        for name, model in models.items():
-            with torch.no_grad():
-                out = model.render(batch).float().clamp(0, 1)
-            err = ((out - batch["target"][:, 1]) ** 2).mean(1)
-            sse[name] += torch.tensor([float(err[m].sum()) for m in masks], dtype=torch.float64)
-    if region == 0:
-        raise InputError("no garment-region pixel in the motion's samples")
-    methods = {}
-    for name, s in sse.items():
-        row = {c: float(v / region) for c, v in zip(CATEGORIES, s, strict=True)}
-        row["total"] = float(s.sum() / region)
-        methods[name] = row
-    share = {c: float(v / region) for c, v in zip(CATEGORIES, count, strict=True)}
-    return {"pixels": int(region), "share": share, "methods": methods}
+        count += _sums(torch.ones_like(masks[0], dtype=torch.float64), masks)
+        for name, out in outs.items():
+            sse[name] += _sums(((out - batch["target"][:, 1]) ** 2).mean(1), masks)
+    return _split(CATEGORIES, count, sse, region)
 
 
 def split_gms(models: dict, data, batch_size: int = 4) -> dict:
@@ -114,9 +130,7 @@ def split_gms(models: dict, data, batch_size: int = 4) -> dict:
     deficit = {name: torch.zeros(len(GMS_CATEGORIES), dtype=torch.float64) for name in models}
     scores = {name: [] for name in models}
     count = torch.zeros(len(GMS_CATEGORIES), dtype=torch.float64)
-    for start in range(0, len(data), batch_size):
-        items = [data[i] for i in range(start, min(start + batch_size, len(data)))]
-        batch = torch.utils.data.default_collate(items)
+    for batch, outs in renders(models, data, batch_size):
         target = batch["target"][:, 1]
         region = garment_region(batch)
         inner = region[:, 0, 1:-1, 1:-1] > 0
@@ -125,27 +139,16 @@ def split_gms(models: dict, data, batch_size: int = 4) -> dict:
         edge = g_target > EDGE_GRADIENT
         masks = [inner & edge & proxy, inner & ~edge & proxy, inner & edge & ~proxy,
                  inner & ~edge & ~proxy]  # fmt: skip
-        count += torch.tensor([float(m.sum()) for m in masks], dtype=torch.float64)
-        for name, model in models.items():
-            with torch.no_grad():
-                out = model.render(batch).float().clamp(0, 1)
+        count += _sums(torch.ones_like(g_target, dtype=torch.float64), masks)
+        for name, out in outs.items():
             gms = gradient_similarity(gradient_magnitude(luminance(out))[:, 0], g_target)
-            deficit[name] += torch.tensor(
-                [float((1 - gms)[m].sum()) for m in masks], dtype=torch.float64
-            )
+            deficit[name] += _sums(1 - gms, masks)
             scores[name].append(gmsd(out, target, region))
-    pixels = float(count.sum())
-    if pixels == 0:
-        raise InputError("no garment-region pixel in the motion's samples")
-    methods = {}
-    for name, d in deficit.items():
-        row = {c: float(v / pixels) for c, v in zip(GMS_CATEGORIES, d, strict=True)}
-        row["total"] = float(d.sum() / pixels)
+    out = _split(GMS_CATEGORIES, count, deficit, float(count.sum()))
+    for name, row in out["methods"].items():
         frames = torch.cat(scores[name])
         row["gmsd"] = float(frames[~frames.isnan()].mean())
-        methods[name] = row
-    share = {c: float(v / pixels) for c, v in zip(GMS_CATEGORIES, count, strict=True)}
-    return {"pixels": int(pixels), "share": share, "methods": methods}
+    return out
 
 
 def main() -> None:

@@ -18,17 +18,17 @@ def _bench():
     return load_benchmark("renderer_regions.py")
 
 
-def _sample() -> dict:
-    """One 4 x 4 sample (frames t-1, t, t+1 alike): a 0.5 grey backdrop, the body in column
-    3, the garment (red) in rows 1-2 of columns 0-2, the proxy in rows 1-3 of columns 1-3. So
-    frame t has 4 px of garment on the proxy over the backdrop, 2 px of garment off the proxy,
-    and 5 px of proxy alone: 3 over the body, 2 over the backdrop."""
-    bg = torch.full((3, 4, 4), 0.5)
-    bg[:, :, 3] = torch.tensor([0.9, 0.7, 0.6])[:, None]  # the body, column 3
-    garment = torch.zeros(1, 4, 4)
-    garment[0, 1:3, 0:3] = 1
-    proxy = torch.zeros(1, 4, 4)
-    proxy[0, 1:4, 1:4] = 1
+def _scene(size: int, garment_box, proxy_box, body_column: int | None = None) -> dict:
+    """One size x size sample (frames t-1, t, t+1 alike): a red garment in the (rows, columns)
+    slices ``garment_box`` over a 0.5 grey backdrop, the proxy in ``proxy_box``, and the body
+    in column ``body_column`` of the backdrop."""
+    bg = torch.full((3, size, size), 0.5)
+    if body_column is not None:
+        bg[:, :, body_column] = torch.tensor([0.9, 0.7, 0.6])[:, None]
+    garment = torch.zeros(1, size, size)
+    garment[0][garment_box] = 1
+    proxy = torch.zeros(1, size, size)
+    proxy[0][proxy_box] = 1
     target = torch.where(garment.bool(), torch.tensor([0.8, 0.1, 0.1])[:, None, None], bg)
     frames = lambda a: torch.stack([a, a, a])  # noqa: E731
     return {
@@ -37,6 +37,13 @@ def _sample() -> dict:
         "target_mask": frames(garment),
         "proxy_mask": frames(proxy),
     }
+
+
+def _sample() -> dict:
+    """4 x 4: the body in column 3, the garment in rows 1-2 of columns 0-2, the proxy in rows
+    1-3 of columns 1-3. So frame t has 4 px of garment on the proxy over the backdrop, 2 px of
+    garment off the proxy, and 5 px of proxy alone: 3 over the body, 2 over the backdrop."""
+    return _scene(4, (slice(1, 3), slice(0, 3)), (slice(1, 4), slice(1, 4)), body_column=3)
 
 
 class _Paints:
@@ -94,21 +101,9 @@ def test_a_missing_model_file_exits_2_naming_it(smoke_project):
 
 
 def _block_sample() -> dict:
-    """One 10 x 10 sample: a red garment in rows 2-7, columns 2-7, on a 0.5 grey backdrop; the
-    proxy in rows 2-8, columns 1-8 (a pixel wider than the garment on three sides)."""
-    bg = torch.full((3, 10, 10), 0.5)
-    garment = torch.zeros(1, 10, 10)
-    garment[0, 2:8, 2:8] = 1
-    proxy = torch.zeros(1, 10, 10)
-    proxy[0, 2:9, 1:9] = 1
-    target = torch.where(garment.bool(), torch.tensor([0.8, 0.1, 0.1])[:, None, None], bg)
-    frames = lambda a: torch.stack([a, a, a])  # noqa: E731
-    return {
-        "target": frames(target),
-        "background": frames(bg),
-        "target_mask": frames(garment),
-        "proxy_mask": frames(proxy),
-    }
+    """10 x 10: the garment in rows 2-7, columns 2-7; the proxy in rows 2-8, columns 1-8 (a
+    pixel wider than the garment on three sides); no body."""
+    return _scene(10, (slice(2, 8), slice(2, 8)), (slice(2, 9), slice(1, 9)))
 
 
 def test_the_gms_split_finds_missed_edges_and_edges_that_are_not_there():

@@ -102,14 +102,15 @@ class RendererConfig(PlainConfig):
     """Weight of the local detail-energy L1 (:func:`training.losses.detail_energy_l1`): as much
     fine detail as the ground truth in each 8 px window, wherever in it. The per-pixel losses
     alone drew a blur where a tier's edge is uncertain (detail 0.61 of the ground truth's on
-    validation, 0.83 with this). 10 drew rims where the ground truth has none: 5 lowered MSE
-    and GMSD on validation in two seeds (docs/decisions.md, "w_detail"). Not in the paper; 0 in
-    the ``paper`` preset."""
+    validation, 0.83 with this). At 10 it drew detail even where a rim's place is uncertain:
+    5 lowered MSE and GMSD on validation in two seeds (docs/decisions.md, "w_detail"). Not in
+    the paper; 0 in the ``paper`` preset."""
     w_gradient: float = 0.0
     """Weight of the multi-scale gradient-magnitude similarity
     (:func:`training.losses.gradient_similarity_loss`): each edge of the ground truth, faint or
-    strong, in its place. At 2 and 10 it bought no GMSD beyond seed noise and cost MSE and SSIM
-    (docs/decisions.md, "w_detail"). Not in the paper; 0 in the ``paper`` preset."""
+    strong, in its place. At 2 it changed nothing on validation; at 10 it bought GMSD under the
+    seed spread and cost MSE and SSIM (docs/decisions.md, "w_detail"). Not in the paper; 0 in
+    the ``paper`` preset."""
     w_perceptual: float = 10.0
     """Weight of the perceptual loss."""
     w_fm: float = 5.0
