@@ -390,7 +390,11 @@ class Playback:
                     self.renderer_path,
                 )
             self._renderer = NeuralRenderer.from_file(
-                self.renderer_path, self.proxy_faces, self.proxy_uvs, device=self.device
+                self.renderer_path,
+                self.proxy_faces,
+                self.proxy_uvs,
+                device=self.device,
+                seam_map=self.seam_map,
             )
         return self._renderer
 
