@@ -1,7 +1,7 @@
 """Where in the garment region each method's error lies: a diagnosis of the renderers' MSE.
 
 Usage: ``python benchmarks/renderer_regions.py PROJECT [--motion NAME] [--source
-joint2coarse|sim] [--model NAME=FILE ...] [--measure mse|gms] [--json]``
+joint2coarse|sim] [--model NAME=FILE ...] [--measure mse|gms|blur] [--json]``
 
 Scores the project's renderer and baselines (and any other model file given with ``--model``,
 such as one kept by ``benchmarks/renderer_validation.py --keep``) on one evaluated motion
@@ -29,6 +29,11 @@ edge there (its gradient magnitude over :data:`EDGE_GRADIENT`) and whether the p
 pixel, each summed over the region's pixel count (so they add up to the mean deficit), beside
 the GMSD. A low GMSD is a deficit spread evenly, not a small one: a method can miss fewer edges
 and still have the larger GMSD, if what it misses it misses all at once.
+
+``--measure blur`` scores each method's renders as they are and blurred (a Gaussian of each
+:data:`BLUR_SIGMAS`, in pixels), and the ground truth itself blurred alike and moved a pixel to
+the right, by the report's garment-region GMSD, mean gradient-similarity deficit, detail ratio
+and MSE: what each measure says of a blur it is meant to see.
 """
 
 from __future__ import annotations
@@ -44,7 +49,16 @@ from pipeline.config import project_config, renderer_validation_motion
 from training.baselines import load_for_evaluation
 from training.dataset import GarmentDataset
 from training.evaluate import garment_region
-from training.metrics import gmsd, gradient_magnitude, gradient_similarity, luminance
+from training.metrics import (
+    detail_ratio,
+    gaussian_window,
+    gms_deficit,
+    gmsd,
+    gradient_magnitude,
+    gradient_similarity,
+    luminance,
+    mse,
+)
 
 CATEGORIES = (
     "garment on the proxy, body behind",
@@ -59,6 +73,10 @@ BODY_THRESHOLD = 0.05
 #: proxy and off it.
 GMS_CATEGORIES = ("edge, on the proxy", "flat, on the proxy", "edge, off the proxy",
                   "flat, off the proxy")  # fmt: skip
+#: Gaussian blurs (sigma, pixels) of ``--measure blur``.
+BLUR_SIGMAS = (0.7, 1.0, 1.5)
+#: The measures of ``--measure blur``: the report's garment-region figures.
+BLUR_MEASURES = {"gmsd": gmsd, "gms deficit": gms_deficit, "detail": detail_ratio, "mse": mse}
 #: Gradient magnitude (Prewitt, of the luma in [0, 1]) above which a ground-truth pixel is an edge:
 #: a step of 0.15 in luma across the 3 px filter (a tier's shaded rim against the red).
 EDGE_GRADIENT = 0.05
@@ -151,6 +169,45 @@ def split_gms(models: dict, data, batch_size: int = 4) -> dict:
     return out
 
 
+def blurred(images: torch.Tensor, sigma: float) -> torch.Tensor:
+    """(N, 3, H, W) images under a separable Gaussian of ``sigma`` pixels (3 sigma each side,
+    the edges replicated)."""
+    radius = max(1, round(3 * sigma))
+    w = gaussian_window(2 * radius + 1, sigma).to(images.dtype)
+    x = torch.nn.functional.pad(images, (radius,) * 4, mode="replicate")
+    x = torch.nn.functional.conv2d(x, w.view(1, 1, 1, -1).repeat(3, 1, 1, 1), groups=3)
+    return torch.nn.functional.conv2d(x, w.view(1, 1, -1, 1).repeat(3, 1, 1, 1), groups=3)
+
+
+def blur_scores(models: dict, data, sigmas=BLUR_SIGMAS, batch_size: int = 4) -> dict:
+    """{"rows": {row: {measure: mean over samples}}}: each method as it renders and blurred by
+    each sigma, then the ground truth blurred alike and a pixel to the right
+    (:data:`BLUR_MEASURES`, on the garment region as the report takes it)."""
+    values: dict[str, dict[str, list]] = {}
+    for batch, outs in renders(models, data, batch_size):
+        target = batch["target"][:, 1]
+        region = garment_region(batch)
+        images = {}
+        for name, out in outs.items():
+            images[name] = out
+            images.update({f"{name}, blurred {s:g} px": blurred(out, s) for s in sigmas})
+        images.update({f"ground truth, blurred {s:g} px": blurred(target, s) for s in sigmas})
+        images["ground truth, a pixel to the right"] = torch.roll(target, 1, dims=3)
+        for row, image in images.items():
+            for measure, fn in BLUR_MEASURES.items():
+                v = fn(image, target, region)
+                values.setdefault(row, {}).setdefault(measure, []).append(v)
+    rows = {}
+    for row, per in values.items():
+        rows[row] = {}
+        for measure, chunks in per.items():
+            v = torch.cat(chunks)
+            rows[row][measure] = float(v[~v.isnan()].mean())
+    if not rows:
+        raise InputError("no sample in the motion's test set")
+    return {"rows": rows}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("project")
@@ -158,8 +215,9 @@ def main() -> None:
     ap.add_argument("--source", choices=["joint2coarse", "sim"], default="joint2coarse")
     ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
     ap.add_argument(
-        "--measure", choices=["mse", "gms"], default="mse",
-        help="split the squared error (mse) or the gradient similarity's deficit (gms)",
+        "--measure", choices=["mse", "gms", "blur"], default="mse",
+        help="split the squared error (mse) or the gradient similarity's deficit (gms), or "
+        "score the renders blurred (blur)",
     )  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
@@ -183,13 +241,19 @@ def main() -> None:
             files[name] = path
         models = {name: load_for_evaluation(path) for name, path in files.items()}
         data = GarmentDataset(project.root, source=args.source, split=motion)
-        split = split_gms if args.measure == "gms" else split_error
+        split = {"mse": split_error, "gms": split_gms, "blur": blur_scores}[args.measure]
         out = {"motion": motion, "source": args.source, "measure": args.measure,
                **split(models, data)}  # fmt: skip
     except InputError as exc:
         ap.exit(2, f"renderer_regions: {exc}\n")
     if args.json:
         print(json.dumps(out, indent=1))
+        return
+    if args.measure == "blur":
+        print(f"{motion}, {args.source} proxy: garment region, means over the samples")
+        print(f"{'render':40s} " + " ".join(f"{m:>12s}" for m in BLUR_MEASURES))
+        for row, f in out["rows"].items():
+            print(f"{row:40s} " + " ".join(f"{f[m]:12.4f}" for m in BLUR_MEASURES))
         return
     names = list(out["methods"])
     what = "1 - GMS" if args.measure == "gms" else "squared error"

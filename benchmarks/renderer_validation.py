@@ -15,8 +15,9 @@ gets the longer budget alike); ``--device`` trains on a GPU, with ``--workers`` 
 (the batches, hence the weights, do not depend on them); scoring runs on the CPU. Then scores it
 on the renderers' validation motion (protocol V, ``renderer_validation``: its own cameras) on
 Joint2Coarse's proxy and on the simulated one (``--keep DIR`` keeps each seed's model file as
-``DIR/METHOD-seed-N.pt``, to render or look at), and prints the garment region's MSE and SSIM,
-the full frame's MSE and the flicker (means over the samples), per seed and over the seeds.
+``DIR/METHOD-seed-N.pt``, to render or look at), and prints the garment region's MSE, GMSD,
+mean gradient-similarity deficit, detail ratio and SSIM, the full frame's MSE and the flicker
+(means over the samples), per seed and over the seeds.
 
 The validation motion's target and images are made in the project first when they are missing
 (as ``dng eval`` makes them; a project made before the split gets ``--motion NAME``, one of its
@@ -56,7 +57,9 @@ from training.dataset import GarmentDataset
 from training.evaluate import EvalConfig, evaluate_motion
 from training.renderer.train import train_renderer
 
-METRICS = ("mse_masked", "gmsd_masked", "detail_masked", "ssim_masked", "mse", "flicker")
+METRICS = (
+    "mse_masked", "gmsd_masked", "gms_masked", "detail_masked", "ssim_masked", "mse", "flicker",
+)  # fmt: skip
 SOURCES = {"joint2coarse": "Joint2Coarse's proxy", "sim": "simulated proxy"}
 
 
@@ -168,7 +171,8 @@ def main() -> None:
             trained = f", trained in {run['train_s']:.0f} s" if "train_s" in run else ""
             print(
                 f"seed {run['seed']}  {SOURCES[src]:21s} MSE garment {f['mse_masked']:.4f}  "
-                f"GMSD garment {f['gmsd_masked']:.3f}  detail garment {f['detail_masked']:.2f}  "
+                f"GMSD garment {f['gmsd_masked']:.3f}  GMS deficit garment "
+                f"{f['gms_masked']:.3f}  detail garment {f['detail_masked']:.2f}  "
                 f"SSIM garment {f['ssim_masked']:.4f}  MSE {f['mse']:.4f}  "
                 f"flicker {f['flicker']:.4f}{trained}"
             )

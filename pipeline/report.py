@@ -102,6 +102,11 @@ def headline_rows(report: dict) -> list[tuple[str, str]]:
         for key, what, fmt in (
             ("mse_masked", "garment-region MSE", ".4f"),
             ("gmsd_masked", "garment-region GMSD (edges; 0 = the ground truth's)", ".3f"),
+            (
+                "gms_masked",
+                "garment-region gradient-similarity deficit, mean (edges missed; 0 = none)",
+                ".3f",
+            ),
             ("detail_masked", "garment-region detail ratio (1 = as much fine detail)", ".2f"),
             ("ssim_masked", "garment-region SSIM", ".3f"),
             ("flicker_masked", "garment-region flicker", ".4f"),

@@ -20,7 +20,11 @@ from training.metrics import (
     FrameMetrics,
     detail_ratio,
     flicker,
+    gms_deficit,
     gmsd,
+    gradient_magnitude,
+    gradient_similarity,
+    luminance,
     mse,
     psnr,
     ssim,
@@ -350,6 +354,29 @@ def test_gmsd_matches_an_obvious_loop_and_counts_only_the_mask():
     damaged[..., 8:, :] = 0
     assert gmsd(damaged, x, mask).item() == pytest.approx(gmsd(y, x, mask).item())
     assert torch.isnan(gmsd(y, x, torch.zeros_like(mask))).all()
+
+
+def test_gms_deficit_is_the_mean_of_the_map_gmsd_the_spread_and_blur_lowers_only_gmsd():
+    """Stripes, and a render of them with the lower half a pixel off. Blurring that render
+    misses every edge alike: GMSD (the map's spread) falls, though the render is further from
+    the truth; the mean deficit rises. Identical images: 0 both; the mask counts as GMSD's."""
+    x = torch.zeros(1, 3, 48, 48, dtype=torch.float64)
+    for c in range(0, 48, 6):
+        x[..., c : c + 3] = 1.0
+    half = x.clone()
+    half[..., 24:, :] = torch.roll(x, 1, dims=3)[..., 24:, :]
+    mask = torch.ones(1, 1, 48, 48, dtype=torch.float64)
+    assert gms_deficit(x, x, mask).item() == 0.0
+    once, twice = _box_blur(half), _box_blur(_box_blur(half))
+    assert gmsd(twice, x, mask) < gmsd(once, x, mask) < gmsd(half, x, mask)
+    assert gms_deficit(half, x, mask) < gms_deficit(once, x, mask) < gms_deficit(twice, x, mask)
+    # the same map as GMSD's: its mean over the mask's inner pixels, NaN for an empty mask
+    y, z = _textured(1, 12, 2), _textured(1, 12, 3)
+    m = torch.zeros(1, 1, 12, 12, dtype=torch.float64)
+    m[..., :6, :] = 1
+    gms = gradient_similarity(gradient_magnitude(luminance(y)), gradient_magnitude(luminance(z)))
+    assert gms_deficit(y, z, m).item() == pytest.approx(1 - gms[..., :5, :].mean().item())
+    assert torch.isnan(gms_deficit(y, z, torch.zeros_like(m))).all()
 
 
 def test_detail_ratio_of_a_flat_ground_truth_is_nan():

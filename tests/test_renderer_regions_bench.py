@@ -136,3 +136,29 @@ def test_the_gms_split_finds_missed_edges_and_edges_that_are_not_there():
     # a line where the ground truth is flat: a deficit on the flat part
     scratch = out["methods"]["scratched"]
     assert scratch["flat, on the proxy"] > 0 and scratch["gmsd"] > 0
+
+
+def test_the_blur_scores_know_the_truth_its_blur_and_its_shift():
+    """The ground truth scores 0 on every edge measure and detail 1; blurred, its detail falls
+    and its mean deficit and MSE rise with the blur; moved a pixel, its detail stays and its
+    edges are missed; each method's row is beside its blurred rows."""
+    bench = _bench()
+    data = [_block_sample(), _block_sample()]
+    models = {"truth": _Paints(lambda b: b["target"][:, 1])}
+    rows = bench.blur_scores(models, data, sigmas=(0.7, 1.5), batch_size=1)["rows"]
+    assert list(rows) == [
+        "truth", "truth, blurred 0.7 px", "truth, blurred 1.5 px",
+        "ground truth, blurred 0.7 px", "ground truth, blurred 1.5 px",
+        "ground truth, a pixel to the right",
+    ]  # fmt: skip
+    t = rows["truth"]
+    assert t["gmsd"] == t["gms deficit"] == t["mse"] == 0 and abs(t["detail"] - 1) < 1e-12
+    assert rows["truth, blurred 1.5 px"] == rows["ground truth, blurred 1.5 px"]
+    light, heavy = rows["ground truth, blurred 0.7 px"], rows["ground truth, blurred 1.5 px"]
+    assert 1 > light["detail"] > heavy["detail"]
+    assert 0 < light["gms deficit"] < heavy["gms deficit"] and 0 < light["mse"] < heavy["mse"]
+    moved = rows["ground truth, a pixel to the right"]
+    assert moved["gms deficit"] > 0 and moved["mse"] > 0 and abs(moved["detail"] - 1) < 0.2
+    # a blur's image is the same size, in [0, 1], and keeps a flat image flat
+    flat = torch.full((1, 3, 6, 6), 0.25)
+    assert torch.allclose(bench.blurred(flat, 1.0), flat)

@@ -34,6 +34,7 @@ def test_the_bench_reproduces_the_projects_validation_figures(smoke_project, tmp
         for metric in (
             "mse_masked",
             "gmsd_masked",
+            "gms_masked",
             "detail_masked",
             "ssim_masked",
             "mse",

@@ -73,7 +73,7 @@ SSIM_K2 = 0.03
 #: Metrics collected by :class:`FrameMetrics`, in report order.
 METRICS = (
     "mse", "psnr", "ssim", "mse_masked", "psnr_masked", "ssim_masked", "gmsd_masked",
-    "detail_masked", "flicker", "flicker_masked", "tof_masked",
+    "gms_masked", "detail_masked", "flicker", "flicker_masked", "tof_masked",
 )  # fmt: skip
 #: Farneback's settings for tOF (pyr_scale, levels, winsize, iterations, poly_n, poly_sigma,
 #: flags): TecoGAN's.
@@ -286,6 +286,33 @@ def gmsd(
     return torch.sqrt(_masked_mean((gms - mean) ** 2, inner))
 
 
+def gms_deficit(
+    pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Per-frame mean gradient magnitude similarity deficit, ``1 - mean(GMS)`` (Xue et al.'s
+    GMSM, as a deficit: lower is better, 0 = the same edges).
+
+    GMSD is the standard deviation of the same map, so it scores how unevenly the edges are
+    missed, not how many: blurring a render with some edges in place and some a pixel off
+    lowers its GMSD (every edge is then missed alike) and raises this mean
+    (``tests/test_metrics.py``). The two stand side by side in the report.
+
+    Parameters
+    ----------
+    pred, target : (N, 3, H, W) float in [0, 1], H, W >= 3
+    mask : (N, 1, H, W) or None; cropped to the inner pixels the gradients reach
+
+    Returns
+    -------
+    (N,) float64 in [0, 1]; NaN for a frame whose mask is empty
+    """
+    pred, target, mask = _check_images(pred, target, mask)
+    gms = gradient_similarity(
+        gradient_magnitude(luminance(pred)), gradient_magnitude(luminance(target))
+    )
+    return 1 - _masked_mean(gms, _inner(mask))
+
+
 def laplacian_energy(gray: torch.Tensor) -> torch.Tensor:
     """|4-neighbour Laplacian| of (N, 1, H, W) -> (N, 1, H - 2, W - 2) (inner pixels)."""
     k = torch.tensor(
@@ -436,6 +463,8 @@ class FrameMetrics:
                 self.add("ssim_masked", ssim(pred, target, mask))
             if "gmsd_masked" in want:
                 self.add("gmsd_masked", gmsd(pred, target, mask))
+            if "gms_masked" in want:
+                self.add("gms_masked", gms_deficit(pred, target, mask))
             if "detail_masked" in want:
                 self.add("detail_masked", detail_ratio(pred, target, mask))
         if clip is None or not want & {"flicker", "flicker_masked", "tof_masked"}:
