@@ -114,30 +114,6 @@ class GroundTruth:
     background: np.ndarray
 
 
-def camera_normals(fragments, vertices: np.ndarray, faces: np.ndarray, camera) -> np.ndarray:
-    """The surface's unit normal at each pixel, in camera space, turned to face the eye:
-    (H, W, 3) float32, 0 off the mesh.
-
-    Smooth vertex normals interpolated with the fragments' barycentrics; a surface is two-sided,
-    so a normal pointing away from the eye is flipped (what a camera-fixed light sees).
-
-    Parameters
-    ----------
-    fragments : core.raster.Fragments of ``vertices``/``faces`` seen by ``camera``
-    vertices : (V, 3) float world positions; faces : (F, 3) int
-    camera : core.camera.Camera
-    """
-    normals = vertex_normals(vertices, faces).astype(np.float32)
-    normals = normals @ camera.R.T.astype(np.float32)  # camera space
-    n = interpolate(fragments, faces, normals)  # (H, W, 3)
-    # Direction to the eye of each pixel's surface point, in camera space.
-    p = interpolate(fragments, faces, world_to_camera(vertices, camera).astype(np.float32))
-    to_eye = -p / np.maximum(np.linalg.norm(p, axis=-1, keepdims=True), 1e-12)
-    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    n = np.where((n * to_eye).sum(-1, keepdims=True) < 0, -n, n)
-    return np.where(fragments.mask[..., None], n, 0.0).astype(np.float32)
-
-
 def headlight_shading(
     fragments, vertices: np.ndarray, faces: np.ndarray, camera, ambient: float = 0.2
 ) -> np.ndarray:
@@ -154,12 +130,17 @@ def headlight_shading(
     camera : core.camera.Camera
     ambient : shade of a surface seen edge-on
     """
-    n = camera_normals(fragments, vertices, faces, camera)
+    normals = vertex_normals(vertices, faces).astype(np.float32)
+    normals = normals @ camera.R.T.astype(np.float32)  # camera space
+    n = interpolate(fragments, faces, normals)  # (H, W, 3)
+    h, w = fragments.face_id.shape
+    # Direction to the eye of each pixel's surface point, in camera space.
     p = interpolate(fragments, faces, world_to_camera(vertices, camera).astype(np.float32))
     to_eye = -p / np.maximum(np.linalg.norm(p, axis=-1, keepdims=True), 1e-12)
-    cos = (n * to_eye).sum(-1)
+    length = np.maximum(np.linalg.norm(n, axis=-1), 1e-12)
+    cos = np.abs((n * to_eye).sum(-1)) / length
     shade = ambient + (1.0 - ambient) * np.clip(cos, 0.0, 1.0)
-    return np.where(fragments.mask, shade, 0.0).astype(np.float32)
+    return np.where(fragments.mask, shade, 0.0).astype(np.float32).reshape(h, w)
 
 
 def _pattern_mix(material: Material, uv: np.ndarray) -> np.ndarray:

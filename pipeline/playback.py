@@ -390,11 +390,7 @@ class Playback:
                     self.renderer_path,
                 )
             self._renderer = NeuralRenderer.from_file(
-                self.renderer_path,
-                self.proxy_faces,
-                self.proxy_uvs,
-                device=self.device,
-                seam_map=self.seam_map,
+                self.renderer_path, self.proxy_faces, self.proxy_uvs, device=self.device
             )
         return self._renderer
 

@@ -8,10 +8,10 @@ import torch
 
 from core.camera import make_camera
 from core.errors import InputError
-from core.features import FeatureConfig, joint_window
+from core.features import joint_window
 from core.mesh import Mesh
 from core.raster import MeshScene
-from core.shading import ShadingConfig, render_background
+from core.shading import render_background
 from tests.conftest import assert_close
 from training.losses import (
     VGG19_CHANNELS,
@@ -37,7 +37,6 @@ from training.renderer import (
     RenderNet,
     synthetic_scene,
 )
-from training.renderer.data import _view
 from training.renderer.model import NeuralTexture, receptive_field
 
 torch.set_num_threads(1)  # 2 threads on the shared 2-core machine are ~50x slower
@@ -507,49 +506,6 @@ def test_crop_render_matches_full_frame_and_background_outside(live, name, guide
     assert diff[inside].mean() < 1.0
     assert np.array_equal(crop[~inside], frames[t].background[~inside])
     assert not np.array_equal(crop[inside], frames[t].background[inside])
-
-
-def test_the_live_renderer_reads_the_normals_the_data_set_gives(live):
-    """With ``use_normals``: the live renderer's input is the training sample's (the same
-    rasterization, texture sample, motion features and camera-space normals), it streams as it
-    renders in one call, and the normals change the image."""
-    sc, cam, frames = live
-    torch.manual_seed(3)
-    net = RenderNet(PRESETS["tiny"].replace(use_normals=True)).eval()
-    assert net.config.in_channels == PRESETS["tiny"].in_channels + 3
-    r = NeuralRenderer(net, sc.faces, sc.uvs)
-    t = 2
-    sample = _view(sc, t, cam, ShadingConfig(supersample=1), FeatureConfig())
-    with torch.no_grad():
-        want = net.input_features(
-            sample["uv"][None], sample["motion"][None], sample["proxy_mask"][None],
-            sample["proxy_normal"][None],
-        )  # fmt: skip
-        got = r.features(r._frame_data(frames[t]), cam)
-    assert (sample["proxy_normal"].abs().sum(0) > 0.5).any()
-    assert_close(got, want, atol=1e-5, what="live input")
-    stream = [r.render(cam, f) for f in frames[:4]]
-    assert np.array_equal(stream[3], r.render_pair(cam, frames[3], frames[2]))
-    with torch.no_grad():
-        inputs = dict(
-            uv=sample["uv"][None], motion=sample["motion"][None], mask=sample["proxy_mask"][None],
-            uv_prev=sample["uv"][None], motion_prev=sample["motion"][None],
-            mask_prev=sample["proxy_mask"][None], background=torch.rand(1, 3, 64, 64),
-        )  # fmt: skip
-        n = sample["proxy_normal"][None]
-        a, _ = net(**inputs, normal=n, normal_prev=n)
-        b, _ = net(**inputs, normal=-n, normal_prev=-n)
-        assert float((a - b).abs().max()) > 1e-4
-        with pytest.raises(ValueError, match="normals"):
-            net(**inputs)
-    frames3 = {k: torch.stack([v] * 3) for k, v in sample.items()}  # t-1, t, t+1 alike
-    batch = RenderBatch.from_dict(frames3)
-    assert batch.generator_inputs(True, use_normals=True)["normal"].shape == (1, 3, 64, 64)
-    plain = RenderBatch.from_dict({k: v for k, v in frames3.items() if k != "proxy_normal"})
-    with pytest.raises(InputError, match="normals"):
-        plain.generator_inputs(True, use_normals=True)
-    with pytest.raises(InputError, match="proxy_normal"):
-        RenderBatch.from_dict(dict(frames3, proxy_normal=torch.zeros(3, 2, 64, 64)))
 
 
 def test_render_without_visible_proxy_is_the_background(live):

@@ -12,7 +12,6 @@ from core.mesh import Mesh
 from core.shading import (
     Material,
     ShadingConfig,
-    camera_normals,
     contact_sheet,
     render_background,
     render_ground_truth,
@@ -162,42 +161,6 @@ def test_vertex_normals_point_outwards_on_a_sphere():
     n = vertex_normals(m.vertices, m.faces)
     v = np.asarray(m.vertices) / np.linalg.norm(m.vertices, axis=1, keepdims=True)
     assert (np.einsum("vc,vc->v", n, v) > 0.99).all()
-
-
-def test_camera_normals_face_the_eye_on_both_sides():
-    """A square seen face-on from the camera: its normal is the camera's -z (towards the eye)
-    whichever way its triangles wind; off the square 0."""
-    from core.raster import MeshScene
-
-    v = np.array([[-0.5, 0.5, 0], [0.5, 0.5, 0], [0.5, 1.5, 0], [-0.5, 1.5, 0]], np.float32)
-    f = np.array([[0, 1, 2], [0, 2, 3]])
-    cam = make_camera((0, 1, 2), (0, 1, 0), width=32, height=32, fov_y_deg=60)
-    for faces in (f, f[:, ::-1].copy()):
-        frags = MeshScene(v, faces).rasterize(cam)
-        n = camera_normals(frags, v, faces, cam)
-        assert n.shape == (32, 32, 3) and frags.mask.any() and not frags.mask.all()
-        assert np.allclose(n[frags.mask], [0, 0, -1], atol=1e-5)
-        assert (n[~frags.mask] == 0).all()
-
-
-def test_camera_normals_turn_with_the_camera(scene):
-    """The same skirt from two sides: the camera-space normals differ, each unit length and
-    facing the eye (n . to_eye > 0) at every covered pixel."""
-    from core.camera import world_to_camera
-    from core.features import interpolate
-    from core.raster import MeshScene
-
-    garment = scene[0]
-    cams = [CAM, make_camera((-2.0, 1.2, 0.5), (0, 0.8, 0), width=48, height=64, fov_y_deg=40)]
-    means = []
-    for cam in cams:
-        frags = MeshScene(garment.vertices, garment.faces).rasterize(cam)
-        n = camera_normals(frags, garment.vertices, garment.faces, cam)[frags.mask]
-        p = interpolate(frags, garment.faces, world_to_camera(garment.vertices, cam))[frags.mask]
-        assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
-        assert ((n * -p).sum(1) >= -1e-6).all()
-        means.append(n.mean(0))
-    assert np.abs(means[0] - means[1]).max() > 0.1
 
 
 def test_png_writing(tmp_path):

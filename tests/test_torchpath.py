@@ -16,7 +16,7 @@ from core.raster import rasterize_reference
 from tests.conftest import assert_close
 from tests.test_raster import CAMERAS, check_invariants, compare_with_reference, scene_mesh, sphere
 from training.torchpath import TorchCamera, TorchPlayer, load_bundle, pair_count, rasterize
-from training.torchpath.shade import camera_normals, render_background
+from training.torchpath.shade import render_background
 
 #: Pixel differences (0..255 levels) allowed between the torch path and today's path: the two
 #: rasterizers disagree only at ties, which move single supersamples of the background and
@@ -305,32 +305,6 @@ def test_torch_background_matches_numpy(playback):
     ).numpy()
     d = np.abs(out.astype(int) - ref.astype(int))
     assert d.mean() < MEAN_LEVELS and (d > 2).mean() < FAR_SHARE, (d.mean(), (d > 2).mean())
-
-
-def test_torch_camera_normals_match_numpy(playback):
-    """The proxy's camera-space normals (a renderer with ``use_normals`` reads them) in torch, on
-    the UV-split proxy with its seam map, against :func:`core.shading.camera_normals` on the
-    seam-free one, as the data set computes them."""
-    from core.raster import MeshScene
-    from core.shading import camera_normals as numpy_normals
-
-    pb = playback
-    cam = pb.default_camera(2, 80, 64, azimuth_deg=30.0)
-    split = np.asarray(pb.proxy_vertices(2), np.float32)
-    seamless = np.zeros((pb.seam_map.max() + 1, 3), np.float32)
-    seamless[pb.seam_map] = split
-    frags = MeshScene(split, pb.proxy_faces).rasterize(cam)
-    ref = numpy_normals(frags, seamless, pb.seam_map[pb.proxy_faces], cam)
-    out = camera_normals(
-        torch.from_numpy(frags.face_id.astype(np.int64))[None],
-        torch.from_numpy(frags.barycentrics.astype(np.float32))[None],
-        torch.from_numpy(split)[None],
-        torch.from_numpy(pb.proxy_faces.astype(np.int64)),
-        torch.from_numpy(pb.seam_map),
-        TorchCamera.from_camera(cam),
-    )[0].numpy()
-    assert frags.mask.sum() > 100
-    assert_close(out, ref, atol=1e-4, what="camera normals")
 
 
 # -- CUDA against the CPU reference (skipped without a GPU) -----------------------------------

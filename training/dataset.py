@@ -20,14 +20,7 @@ from core.errors import InputError
 from core.features import FeatureConfig, interpolate, joint_window, vertex_motion_features
 from core.mesh import load_mesh
 from core.raster import RasterConfig, rasterize
-from core.shading import (
-    camera_normals,
-    colorize_scalar,
-    colorize_uv,
-    contact_sheet,
-    headlight_shading,
-    write_png,
-)
+from core.shading import colorize_scalar, colorize_uv, contact_sheet, headlight_shading, write_png
 
 #: Keys and shapes of one sample (channels first; a DataLoader adds a leading batch axis).
 SAMPLE_KEYS = {
@@ -39,8 +32,6 @@ SAMPLE_KEYS = {
     "target_mask": "(3, 1, H, W) float32: garment coverage in the ground truth",
     "proxy_shading": "(3, 1, H, W) float32: the proxy shaded grey from the camera, 0 off it "
     "(the Pix2Pix baseline's input; the neural renderer does not read it)",
-    "proxy_normal": "(3, 3, H, W) float32: the proxy's unit normal in camera space, turned to "
-    "the eye, 0 off it (the neural renderer's input with ``use_normals``)",
 }
 #: What replaces ``motion`` in a data set made with ``motion_per_vertex=True``
 #: (:data:`training.renderer.data.VERTEX_MOTION_KEYS`).
@@ -192,8 +183,8 @@ class GarmentDataset:
         return other
 
     def proxy_maps(self, t: int, camera, motion_per_vertex: bool = False) -> dict[str, np.ndarray]:
-        """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W), grey
-        headlight shading (1, H, W) and camera-space normals (3, H, W) at frame t; with ``motion_per_vertex`` the motion
+        """UV map (2, H, W), motion features (95, H, W), proxy mask (1, H, W) and grey
+        headlight shading (1, H, W) at frame t; with ``motion_per_vertex`` the motion
         features' per-vertex form (:data:`VERTEX_MOTION_SAMPLE_KEYS`, one frame) instead."""
         v = self.proxy.vertices(t)
         frags = rasterize(v, self.proxy.faces, camera, self.raster)
@@ -219,9 +210,6 @@ class GarmentDataset:
             "proxy_shading": headlight_shading(
                 frags, self.proxy.positions[t], self._seamless_faces, camera
             )[None],
-            "proxy_normal": camera_normals(
-                frags, self.proxy.positions[t], self._seamless_faces, camera
-            ).transpose(2, 0, 1),
         }
 
     def __getitem__(self, i: int) -> dict:

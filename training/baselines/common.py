@@ -353,7 +353,7 @@ class RendererAdapter:
         self.net.eval()
         try:
             with torch.no_grad():
-                rgb, _ = self.net(**b.generator_inputs(cfg.use_motion, cfg.use_normals))
+                rgb, _ = self.net(**b.generator_inputs(cfg.use_motion))
         finally:
             self.net.train(was)
         return rgb

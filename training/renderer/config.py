@@ -62,11 +62,6 @@ class RendererConfig(PlainConfig):
     encoder, decoder and refinement, too slowly for a few hundred steps: the garment's detail on
     validation was 0.49 of the ground truth's (docs/decisions.md, "texture_readout"). Not in the
     paper; off in the ``paper`` preset."""
-    use_normals: bool = False
-    """Feed the network the proxy's unit normals in camera space (3 more input channels, 0 off
-    the proxy, frames t and t-1). The light is fixed to the camera, so the garment's shading
-    turns with the view; the neural texture lives on the garment and says nothing of it. Not
-    in the paper (whose input is the texture and the motion features)."""
     background_guide: bool = False
     """Show the decoder the body-only background image, averaged down to each of its scales
     (3 more input channels to each up stage's fuse): the encoder's input is zero off the proxy
@@ -238,8 +233,7 @@ class RendererConfig(PlainConfig):
         """The config of a model file or bundle: fields added since read as the files were
         trained: before ``lr_decay_from`` at constant rates (1.0), before ``adam_eps`` at
         torch's 1e-8, before ``texture_lr_scale`` at one rate, before ``texture_readout``
-        without one, before ``background_guide`` unguided, before ``alpha_prior`` with none,
-        before ``use_normals`` without normals."""
+        without one, before ``background_guide`` unguided, before ``alpha_prior`` with none."""
         old = {
             "lr_decay_from": 1.0,
             "adam_eps": 1e-8,
@@ -247,7 +241,6 @@ class RendererConfig(PlainConfig):
             "texture_readout": False,
             "background_guide": False,
             "alpha_prior": 0.0,
-            "use_normals": False,
         }
         return cls.from_dict({**old, **data})
 
@@ -272,11 +265,8 @@ class RendererConfig(PlainConfig):
     @property
     def in_channels(self) -> int:
         """Network input channels: texture + motion (159 in the paper); without motion, texture
-        + the proxy's coverage mask; + 3 with ``use_normals``."""
-        normals = 3 if self.use_normals else 0
-        return (
-            self.texture_out_channels + (self.motion_channels if self.use_motion else 1) + normals
-        )
+        + the proxy's coverage mask."""
+        return self.texture_out_channels + (self.motion_channels if self.use_motion else 1)
 
     def replace(self, **changes) -> RendererConfig:
         """A copy with some fields changed (validated)."""

@@ -48,7 +48,7 @@ from core.features import (
 )
 from core.mesh import Mesh
 from core.raster import MeshScene
-from core.shading import Material, ShadingConfig, camera_normals, render_views
+from core.shading import Material, ShadingConfig, render_views
 
 #: Keys of a sample and their channel counts (motion: the config's ``motion_channels``).
 SAMPLE_KEYS = {
@@ -93,9 +93,7 @@ class RenderBatch:
     ``motion`` is None when the batch carries its motion features per vertex: then
     ``motion_corners`` (B, 3, 3, H, W) int32, ``motion_weights`` (B, 3, 3, H, W) float32 and
     ``vertex_motion`` (B, 3, V, C) float32, interpolated by :meth:`motion_frame` where the
-    batch is (after :meth:`to`, on the trainer's device). ``proxy_normal`` (B, 3, 3, H, W),
-    the proxy's camera-space normals, is there when the sample has it (what a renderer with
-    ``use_normals`` reads).
+    batch is (after :meth:`to`, on the trainer's device).
     """
 
     uv: torch.Tensor
@@ -104,7 +102,6 @@ class RenderBatch:
     target: torch.Tensor
     background: torch.Tensor
     target_mask: torch.Tensor
-    proxy_normal: torch.Tensor | None = None
     motion_corners: torch.Tensor | None = None
     motion_weights: torch.Tensor | None = None
     vertex_motion: torch.Tensor | None = None
@@ -143,16 +140,6 @@ class RenderBatch:
                     name,
                 )
             out[k] = t.float()
-        if "proxy_normal" in sample:
-            t = torch.as_tensor(sample["proxy_normal"])
-            t = t.unsqueeze(0) if t.dim() == 4 else t
-            if t.dim() != 5 or t.shape[1:3] != (3, 3) or (t.shape[0], *t.shape[3:]) != ref:
-                raise InputError(
-                    f"sample['proxy_normal'] must be (B, 3, 3, {ref[1]}, {ref[2]}) with B = "
-                    f"{ref[0]}, got {tuple(sample['proxy_normal'].shape)}",
-                    name,
-                )
-            out["proxy_normal"] = t.float()
         if per_vertex:
             out.update(_check_vertex_motion(sample, motion_channels, ref, name), motion=None)
         return cls(**out)
@@ -181,21 +168,9 @@ class RenderBatch:
         """(H, W)."""
         return tuple(self.uv.shape[-2:])
 
-    def generator_inputs(
-        self, use_motion: bool = True, use_normals: bool = False
-    ) -> dict[str, torch.Tensor | None]:
-        """Keyword arguments of :meth:`RenderNet.forward` for frame t (with ``use_normals``
-        the proxy's normals too: ``InputError`` when the batch has none)."""
-        normals = {}
-        if use_normals:
-            if self.proxy_normal is None:
-                raise InputError("this renderer reads the proxy's normals: the batch has none")
-            normals = {
-                "normal": self.proxy_normal[:, CUR],
-                "normal_prev": self.proxy_normal[:, PREV],
-            }
+    def generator_inputs(self, use_motion: bool = True) -> dict[str, torch.Tensor | None]:
+        """Keyword arguments of :meth:`RenderNet.forward` for frame t."""
         return {
-            **normals,
             "uv": self.uv[:, CUR],
             "motion": self.motion_frame(CUR) if use_motion else None,
             "mask": self.proxy_mask[:, CUR],
@@ -305,8 +280,7 @@ class SyntheticDataset(torch.utils.data.Dataset):
     """Samples (the contract above) rendered from a :class:`SyntheticScene`.
 
     Each item is a camera and a frame t (1 <= t <= T-2); the target garment is the proxy itself
-    with a checker pattern, lit by :mod:`core.shading`; beside the contract's keys, the proxy's
-    camera-space normals (``proxy_normal``). Everything is computed in ``__init__``.
+    with a checker pattern, lit by :mod:`core.shading`. Everything is computed in ``__init__``.
 
     Parameters
     ----------
@@ -338,7 +312,7 @@ class SyntheticDataset(torch.utils.data.Dataset):
         for t in range(1, n - 1):
             for cam in random_cameras(cameras_per_frame, (seed, t), rig):
                 frames = [_view(scene, f, cam, shading, fc) for f in (t - 1, t, t + 1)]
-                self.items.append({k: torch.stack([fr[k] for fr in frames]) for k in frames[0]})
+                self.items.append({k: torch.stack([fr[k] for fr in frames]) for k in SAMPLE_KEYS})
                 self.cameras.append(cam)
 
     def __len__(self) -> int:
@@ -363,5 +337,4 @@ def _view(scene: SyntheticScene, t: int, cam: Camera, shading: ShadingConfig, fc
         "target": chw(gt.image.astype(np.float32) / 255),
         "background": chw(gt.background.astype(np.float32) / 255),
         "target_mask": torch.from_numpy(gt.coverage.astype(np.float32))[None],
-        "proxy_normal": chw(camera_normals(frag, scene.proxy[t], scene.faces, cam)),
     }

@@ -26,7 +26,6 @@ from core.camera import Camera, crop_camera, project
 from core.errors import InputError
 from core.features import FeatureConfig, interpolate, uv_map, vertex_motion_features
 from core.raster import MeshScene, RasterConfig, check_mesh_arrays
-from core.shading import camera_normals
 from training.renderer.model import RenderNet
 
 
@@ -62,25 +61,12 @@ class CropBox:
 class _FrameData:
     """A frame's scene and per-vertex motion features (computed once, reused per camera)."""
 
-    def __init__(
-        self,
-        frame: FrameState,
-        faces: np.ndarray,
-        fc: FeatureConfig,
-        motion: bool,
-        seam_map: np.ndarray | None = None,
-    ):
+    def __init__(self, frame: FrameState, faces: np.ndarray, fc: FeatureConfig, motion: bool):
         self.frame = frame
         self.scene = MeshScene(frame.vertices, faces)
         self.features = (
             vertex_motion_features(frame.vertices, frame.window, fc.sigma) if motion else None
         )
-        self.seamless = None  # with a seam map: (seam-free vertices, their faces), for normals
-        if seam_map is not None:
-            v = np.asarray(frame.vertices, np.float32)
-            seamless = np.zeros((int(seam_map.max()) + 1, 3), np.float32)
-            seamless[seam_map] = v
-            self.seamless = (seamless, seam_map[faces])
 
 
 class NeuralRenderer:
@@ -93,9 +79,6 @@ class NeuralRenderer:
     uvs : (V, 2) float per vertex, or (F, 3, 2) per corner
     feature_config : how motion features are made (must match training)
     device : torch device of the network
-    seam_map : (V,) int, each UV vertex's seam-free vertex (``proxy/seams.npz``): the proxy's
-        normals (a renderer with ``use_normals``) are then smooth across the UV seams, as in
-        training; None treats every vertex as its own
     """
 
     def __init__(
@@ -106,7 +89,6 @@ class NeuralRenderer:
         feature_config: FeatureConfig | None = None,
         device: str | torch.device = "cpu",
         raster: RasterConfig | None = None,
-        seam_map: np.ndarray | None = None,
     ):
         self.net = net.eval().to(device)
         self.config = net.config
@@ -115,12 +97,6 @@ class NeuralRenderer:
         self.uvs = np.asarray(uvs, np.float32)
         self.feature_config = feature_config or FeatureConfig()
         self.raster = raster or RasterConfig()
-        self.seam_map = None if seam_map is None else np.asarray(seam_map, np.int64)
-        if self.seam_map is not None and self.seam_map.shape != (int(self.faces.max()) + 1,):
-            raise InputError(
-                f"seam map must be ({int(self.faces.max()) + 1},), one per UV vertex, "
-                f"got {self.seam_map.shape}"
-            )
         self._frames: list[_FrameData] = []  # the last two frames seen
         self._last: tuple | None = None  # (key, frame, latent) of the previous call
         self.encodes = 0  # encoder runs (for tests and benchmarks)
@@ -149,11 +125,7 @@ class NeuralRenderer:
         w = np.asarray(frame.window)
         if w.ndim != 3 or w.shape[0] != len(self.feature_config.frame_offsets) or w.shape[2] != 3:
             raise InputError(f"joint window must be (K, J, 3) with K matching, got {w.shape}")
-        seams = self.seam_map if self.seam_map is not None else np.arange(len(v))
-        fd = _FrameData(
-            frame, self.faces, self.feature_config, self.config.use_motion,
-            seams if self.config.use_normals else None,
-        )  # fmt: skip
+        fd = _FrameData(frame, self.faces, self.feature_config, self.config.use_motion)
         self._frames = [*self._frames[-1:], fd]
         return fd
 
@@ -189,10 +161,7 @@ class NeuralRenderer:
         motion = None
         if self.config.use_motion:
             motion = chw(interpolate(frag, self.faces, fd.features, "float32")).to(self.device)
-        normal = None
-        if fd.seamless is not None:
-            normal = chw(camera_normals(frag, *fd.seamless, camera)).to(self.device)
-        return self.net.input_features(uv, motion, mask, normal)
+        return self.net.input_features(uv, motion, mask)
 
     def _encode(self, fd: _FrameData, camera: Camera) -> tuple[torch.Tensor, list[torch.Tensor]]:
         """(latent, encoder skips) of a frame; only the latent is kept for the next frame."""

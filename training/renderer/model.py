@@ -345,28 +345,17 @@ class RenderNet(nn.Module):
         return self.config.stride
 
     def input_features(
-        self,
-        uv: torch.Tensor,
-        motion: torch.Tensor | None,
-        mask: torch.Tensor,
-        normal: torch.Tensor | None = None,
+        self, uv: torch.Tensor, motion: torch.Tensor | None, mask: torch.Tensor
     ) -> torch.Tensor:
-        """Step 1: texture sample + motion features (without motion: + the mask), + the
-        proxy's normals with ``use_normals``: (B, in_channels, H, W), 0 off the proxy.
+        """Step 1: texture sample + motion features (without motion: + the mask): (B,
+        in_channels, H, W), 0 off the proxy.
 
-        uv (B, 2, H, W), motion (B, 95, H, W) or None without motion, mask (B, 1, H, W),
-        normal (B, 3, H, W) camera-space unit normals (only with ``use_normals``).
+        uv (B, 2, H, W), motion (B, 95, H, W) or None without motion, mask (B, 1, H, W).
         """
         tex = self.texture(uv, mask)
-        parts = [
-            tex,
-            mask.to(tex.dtype) if not self.config.use_motion else motion.to(tex.dtype) * mask,
-        ]
-        if self.config.use_normals:
-            if normal is None:
-                raise ValueError("this renderer reads the proxy's normals: pass them")
-            parts.append(normal.to(tex.dtype) * mask)
-        return torch.cat(parts, 1)
+        if not self.config.use_motion:
+            return torch.cat([tex, mask.to(tex.dtype)], 1)
+        return torch.cat([tex, motion.to(tex.dtype) * mask], 1)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """Step 2: input features (B, Cin, H, W) -> latent (B, Cz, H / s, W / s), s = stride."""
@@ -427,16 +416,13 @@ class RenderNet(nn.Module):
         mask_prev: torch.Tensor,
         background: torch.Tensor,
         with_texture: bool = False,
-        normal: torch.Tensor | None = None,
-        normal_prev: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, ...]:
         """Render frame t from its inputs and frame t-1's: (rgb (B, 3, H, W), A (B, 1, H, W)),
         and with ``with_texture`` frame t's texture sample (B, L * C, H, W) third (what a
-        texture regulariser reads, through the same forward as the image). ``normal`` and
-        ``normal_prev`` (B, 3, H, W) only with ``use_normals``."""
+        texture regulariser reads, through the same forward as the image)."""
         b = uv.shape[0]
         if not self.config.use_temporal:  # frame t-1 is never looked at: not encoded either
-            x = self.input_features(uv, motion, mask, normal)
+            x = self.input_features(uv, motion, mask)
             z, skips = self.encode_with_skips(x)
             out = self.decode(z, z, background, skips)
         else:
@@ -444,7 +430,6 @@ class RenderNet(nn.Module):
                 torch.cat([uv, uv_prev]),
                 None if motion is None else torch.cat([motion, motion_prev]),
                 torch.cat([mask, mask_prev]),
-                None if normal is None else torch.cat([normal, normal_prev]),
             )
             z, skips = self.encode_with_skips(x)
             out = self.decode(z[:b], z[b:], background, [f[:b] for f in skips])

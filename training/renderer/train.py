@@ -137,7 +137,6 @@ def _architecture(config: RendererConfig) -> dict:
         "texture_sizes", "texture_channels", "motion_channels", "use_motion", "base_width",
         "max_width", "n_down", "decoder_features", "background_width", "disc_width",
         "skip_connections", "blend_output", "use_temporal", "texture_readout", "background_guide",
-        "use_normals",
     )  # fmt: skip
     d = config.to_dict()
     return {k: d[k] for k in keep}
@@ -180,15 +179,8 @@ class RendererMethod:
     and ``[I_{t+1}, I_t]`` (real), or without ``temporal`` single frames, R_t against I_t. Its
     regulariser, weighted by ``w_texture`` (0: none), is DNR's on frame t's sampled texture."""
 
-    def __init__(
-        self,
-        use_motion: bool,
-        temporal: bool = True,
-        w_texture: float = 0.0,
-        use_normals: bool = False,
-    ):
+    def __init__(self, use_motion: bool, temporal: bool = True, w_texture: float = 0.0):
         self.use_motion = use_motion
-        self.use_normals = use_normals
         self.temporal = temporal
         self.extra_weight = w_texture
 
@@ -196,10 +188,8 @@ class RendererMethod:
         """(R_t (B, 3, H, W), frame t's sampled texture (B, L * C, H, W), or None without the
         regulariser)."""
         if self.extra_weight <= 0:
-            return net(**batch.generator_inputs(self.use_motion, self.use_normals))[0], None
-        rgb, _, texture = net(
-            **batch.generator_inputs(self.use_motion, self.use_normals), with_texture=True
-        )
+            return net(**batch.generator_inputs(self.use_motion))[0], None
+        rgb, _, texture = net(**batch.generator_inputs(self.use_motion), with_texture=True)
         return rgb, texture
 
     def target(self, batch: RenderBatch) -> torch.Tensor:
@@ -269,9 +259,7 @@ def renderer_trainer(
         extra={"init_from": "" if init_from is None else str(init_from)},
     )
     return AdversarialTrainer(
-        net, disc, RendererMethod(
-            config.use_motion, config.use_temporal, config.w_texture, config.use_normals
-        ),
+        net, disc, RendererMethod(config.use_motion, config.use_temporal, config.w_texture),
         config, files,
         n_samples=len(dataset), batch_size=config.batch_size, steps=steps, device=device,
         precision=config.resolved_precision(device.type),
@@ -287,7 +275,7 @@ def _preview(tr: AdversarialTrainer, dataset, out_dir: Path) -> None:
     batch = collate_samples([dataset[0]], cfg.motion_channels).to(tr.device)
     tr.net.eval()
     with torch.no_grad():
-        fake, a = tr.net(**batch.generator_inputs(cfg.use_motion, cfg.use_normals))
+        fake, a = tr.net(**batch.generator_inputs(cfg.use_motion))
     tiles = [_image(fake[0]), _image(batch.target[0, CUR]), _image(a[0].expand(3, -1, -1))]
     sheet = contact_sheet(tiles, ["prediction", "ground truth", "mask A"])
     write_png(out_dir / PREVIEW_DIR / f"step_{tr.step:06d}.png", sheet)

@@ -45,7 +45,7 @@ from training.renderer.config import RendererConfig
 from training.renderer.model import RenderNet
 from training.torchpath.bundle import load_bundle
 from training.torchpath.raster import TorchCamera, pair_count, rasterize
-from training.torchpath.shade import camera_normals, render_background
+from training.torchpath.shade import render_background
 
 WINDOWS = ("crop", "full")
 #: Slack on a first frame's pair count when capacities are fixed (``window="full"``).
@@ -299,11 +299,7 @@ class TorchPlayer:
         if self.config.use_motion:
             feats = vertex_motion_features_torch(vertices, self.joint_window(frames), self.sigma)
             motion = interpolate_torch(fid, bary, self.faces, feats).permute(0, 3, 1, 2)
-        normal = None
-        if self.config.use_normals:
-            n = camera_normals(fid, bary, vertices, self.faces, self.seam_map, crop)
-            normal = n.permute(0, 3, 1, 2)
-        x = self.net.input_features(uv, motion, mask, normal)
+        x = self.net.input_features(uv, motion, mask)
         return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
 
     def _encode(self, x):

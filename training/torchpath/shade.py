@@ -12,7 +12,6 @@ import numpy as np
 import torch
 
 from core.errors import InputError
-from core.features import interpolate_torch
 from core.lighting import environment_matrix, sh_basis
 from core.shading import Material, ShadingConfig, srgb_to_linear
 from training.torchpath.raster import TorchCamera, rasterize
@@ -31,37 +30,6 @@ def vertex_normals(
         n.index_add_(1, faces[:, k], fn)
     n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-30)
     return n, fn / fn.norm(dim=-1, keepdim=True).clamp(min=1e-30)
-
-
-def camera_normals(
-    face_id: torch.Tensor,
-    barycentrics: torch.Tensor,
-    vertices: torch.Tensor,
-    faces: torch.Tensor,
-    seam_map: torch.Tensor,
-    camera: TorchCamera,
-) -> torch.Tensor:
-    """:func:`core.shading.camera_normals` in torch: each pixel's unit normal in camera space,
-    turned to the eye, (B, H, W, 3) float32, 0 off the mesh.
-
-    face_id (B, H, W) int64 and barycentrics (B, H, W, 3) are fragments of the UV-split
-    ``vertices`` (B, Vp, 3) and ``faces`` (F, 3); ``seam_map`` (Vp,) int64 names each one's
-    seam-free vertex, so the normals are smooth across the UV seams.
-    """
-    b = len(vertices)
-    seamless = vertices.new_zeros((b, int(seam_map.max()) + 1, 3))
-    seamless[:, seam_map] = vertices
-    n = vertex_normals(seamless, seam_map[faces])[0][:, seam_map]
-    r = camera.R.float().expand(b, 3, 3)
-    t = camera.t.float().expand(b, 3)
-    n = interpolate_torch(face_id, barycentrics, faces, n @ r.transpose(1, 2))
-    p = interpolate_torch(
-        face_id, barycentrics, faces, vertices.float() @ r.transpose(1, 2) + t[:, None]
-    )
-    n = n / n.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-    facing = (n * p).sum(-1, keepdim=True) > 0  # p points away from the eye
-    n = torch.where(facing, -n, n)
-    return torch.where((face_id >= 0)[..., None], n, torch.zeros_like(n))
 
 
 def _constant(x, like: torch.Tensor) -> torch.Tensor:
