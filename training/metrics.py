@@ -263,6 +263,13 @@ def gradient_similarity(g_pred: torch.Tensor, g_target: torch.Tensor) -> torch.T
     return (2 * g_pred * g_target + GMSD_C) / (g_pred**2 + g_target**2 + GMSD_C)
 
 
+def _gms_map(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None):
+    """The checked images' GMS map (N, 1, H - 2, W - 2) and the mask cropped to it."""
+    pred, target, mask = _check_images(pred, target, mask)
+    g_pred, g_target = (gradient_magnitude(luminance(x)) for x in (pred, target))
+    return gradient_similarity(g_pred, g_target), _inner(mask)
+
+
 def gmsd(
     pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None
 ) -> torch.Tensor:
@@ -277,11 +284,7 @@ def gmsd(
     -------
     (N,) float64; NaN for a frame whose mask is empty
     """
-    pred, target, mask = _check_images(pred, target, mask)
-    gms = gradient_similarity(
-        gradient_magnitude(luminance(pred)), gradient_magnitude(luminance(target))
-    )
-    inner = _inner(mask)
+    gms, inner = _gms_map(pred, target, mask)
     mean = _masked_mean(gms, inner).view(-1, 1, 1, 1)
     return torch.sqrt(_masked_mean((gms - mean) ** 2, inner))
 
@@ -306,11 +309,8 @@ def gms_deficit(
     -------
     (N,) float64 in [0, 1]; NaN for a frame whose mask is empty
     """
-    pred, target, mask = _check_images(pred, target, mask)
-    gms = gradient_similarity(
-        gradient_magnitude(luminance(pred)), gradient_magnitude(luminance(target))
-    )
-    return 1 - _masked_mean(gms, _inner(mask))
+    gms, inner = _gms_map(pred, target, mask)
+    return 1 - _masked_mean(gms, inner)
 
 
 def laplacian_energy(gray: torch.Tensor) -> torch.Tensor:
