@@ -34,6 +34,17 @@ and still have the larger GMSD, if what it misses it misses all at once.
 :data:`BLUR_SIGMAS`, in pixels), and the ground truth itself blurred alike and moved a pixel to
 the right, by the report's garment-region GMSD, mean gradient-similarity deficit, detail ratio
 and MSE: what each measure says of a blur it is meant to see.
+
+``--measure dynamics`` asks how much of the garment's image is the detailed target's motion of
+its own. It renders the same target embedded in the same simulated proxy (every piece carried
+by the proxy, as ``target_mode="embed"`` makes it: what the ground truth would show if the
+tiers had no dynamics of their own) from each sample's camera at frame t, exactly as the ground
+truth is rendered, and scores that image against the ground truth by the report's
+garment-region measures. Beside it, each method's garment-region MSE against the ground truth
+and against that embedded image. The embedded image's MSE is the part of the ground truth that
+the proxy's current frame cannot tell: a renderer that knew the dynamics exactly and otherwise
+rendered as a method does could take at most about that much off the method's MSE (exactly
+that much where the method's error and the dynamics' image are uncorrelated).
 """
 
 from __future__ import annotations
@@ -208,6 +219,74 @@ def blur_scores(models: dict, data, sigmas=BLUR_SIGMAS, batch_size: int = 4) -> 
     return {"rows": rows}
 
 
+def embedded_images(project: Project, config, data) -> torch.Tensor:
+    """Frame t of each of ``data``'s samples with the detailed target embedded in the simulated
+    proxy (:func:`pipeline.stages.simulate.embedded_target`), rendered with the project's light
+    from the sample's camera: (N, 3, H, W) float in [0, 1], 8-bit as the ground truth's PNGs."""
+    from core.body.mannequin import make_body
+    from core.body.skinning import pose_body
+    from core.mesh import Mesh, load_mesh
+    from core.shading import render_views
+    from pipeline.stages.dataset import project_shading
+    from pipeline.stages.motions import load_project_motion
+    from pipeline.stages.simulate import embedded_target
+
+    motion = data.split
+    positions, _, _ = embedded_target(project, config, motion)
+    faces = load_mesh(project.path("garment", "target.obj"))[0].faces
+    body = make_body(config.body)
+    body_frames = pose_body(body, load_project_motion(project, motion))
+    shading = project_shading(config)
+    by_frame: dict[int, list[int]] = {}
+    for i, (t, _, _) in enumerate(data.samples):
+        by_frame.setdefault(t, []).append(i)
+    out: list = [None] * len(data.samples)
+    for t, idx in by_frame.items():
+        views = render_views(
+            Mesh(positions[t], faces), Mesh(body_frames[t], body.faces),
+            [data.samples[i][2] for i in idx], shading,
+        )  # fmt: skip
+        for i, gt in zip(idx, views, strict=True):
+            out[i] = torch.from_numpy(gt.image.astype("float32") / 255).permute(2, 0, 1)
+    return torch.stack(out)
+
+
+def dynamics_scores(models: dict, data, embedded: torch.Tensor, batch_size: int = 4) -> dict:
+    """{"embedded": {measure: mean}, "methods": {name: {"mse": ..., "mse_to_embedded": ...}}}:
+    the embedded images ``embedded`` (N, 3, H, W), one per sample of ``data``, scored against
+    the ground truth by :data:`BLUR_MEASURES`, and each method's garment-region MSE against the
+    ground truth and against the embedded image; means over the samples, on the report's
+    garment region."""
+    if len(embedded) != len(data):
+        raise InputError(f"{len(embedded)} embedded images for {len(data)} samples")
+    values: dict[str, list] = {}
+    methods: dict[str, dict[str, list]] = {}
+    start = 0
+    for batch, outs in renders(models, data, batch_size):
+        target = batch["target"][:, 1]
+        region = garment_region(batch)
+        still = embedded[start : start + len(target)]
+        start += len(target)
+        for measure, fn in BLUR_MEASURES.items():
+            values.setdefault(measure, []).append(fn(still, target, region))
+        for name, out in outs.items():
+            row = methods.setdefault(name, {"mse": [], "mse_to_embedded": []})
+            row["mse"].append(mse(out, target, region))
+            row["mse_to_embedded"].append(mse(out, still, region))
+    if not values:
+        raise InputError("no sample in the motion's test set")
+    return {
+        "embedded": {m: _mean(c) for m, c in values.items()},
+        "methods": {n: {k: _mean(c) for k, c in row.items()} for n, row in methods.items()},
+    }
+
+
+def _mean(chunks: list[torch.Tensor]) -> float:
+    """The mean of per-sample values, NaNs (a sample without a garment region) left out."""
+    v = torch.cat(chunks)
+    return float(v[~v.isnan()].mean())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("project")
@@ -215,9 +294,9 @@ def main() -> None:
     ap.add_argument("--source", choices=["joint2coarse", "sim"], default="joint2coarse")
     ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
     ap.add_argument(
-        "--measure", choices=["mse", "gms", "blur"], default="mse",
-        help="split the squared error (mse) or the gradient similarity's deficit (gms), or "
-        "score the renders blurred (blur)",
+        "--measure", choices=["mse", "gms", "blur", "dynamics"], default="mse",
+        help="split the squared error (mse) or the gradient similarity's deficit (gms), "
+        "score the renders blurred (blur), or against the target embedded (dynamics)",
     )  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
@@ -241,13 +320,28 @@ def main() -> None:
             files[name] = path
         models = {name: load_for_evaluation(path) for name, path in files.items()}
         data = GarmentDataset(project.root, source=args.source, split=motion)
-        split = {"mse": split_error, "gms": split_gms, "blur": blur_scores}[args.measure]
-        out = {"motion": motion, "source": args.source, "measure": args.measure,
-               **split(models, data)}  # fmt: skip
+        if args.measure == "dynamics":
+            scores = dynamics_scores(models, data, embedded_images(project, config, data))
+        else:
+            split = {"mse": split_error, "gms": split_gms, "blur": blur_scores}[args.measure]
+            scores = split(models, data)
+        out = {"motion": motion, "source": args.source, "measure": args.measure, **scores}
     except InputError as exc:
         ap.exit(2, f"renderer_regions: {exc}\n")
     if args.json:
         print(json.dumps(out, indent=1))
+        return
+    if args.measure == "dynamics":
+        e = out["embedded"]
+        print(f"{motion}, {args.source} proxy: garment region, means over the samples")
+        print(
+            "the target embedded, against the ground truth: "
+            + ", ".join(f"{m} {e[m]:.4f}" for m in BLUR_MEASURES)
+        )
+        print(f"{'method':24s} {'MSE':>10s} {'to embedded':>12s} {'less the embedded':>18s}")
+        for name, row in out["methods"].items():
+            rest = max(row["mse"] - e["mse"], 0.0)
+            print(f"{name:24s} {row['mse']:10.4f} {row['mse_to_embedded']:12.4f} {rest:18.4f}")
         return
     if args.measure == "blur":
         print(f"{motion}, {args.source} proxy: garment region, means over the samples")

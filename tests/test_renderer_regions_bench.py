@@ -162,3 +162,55 @@ def test_the_blur_scores_know_the_truth_its_blur_and_its_shift():
     # a blur's image is the same size, in [0, 1], and keeps a flat image flat
     flat = torch.full((1, 3, 6, 6), 0.25)
     assert torch.allclose(bench.blurred(flat, 1.0), flat)
+
+
+def test_the_dynamics_scores_know_a_still_image_that_is_the_truth_and_one_that_is_not():
+    """Embedded images equal to the ground truth: nothing is dynamics, and every method's MSE is
+    the same against either. Embedded images that are the bare background: their MSE is the
+    background's own, and the background method is exact against them."""
+    bench = _bench()
+    data = [_block_sample(), _block_sample()]
+    models = {
+        "truth": _Paints(lambda b: b["target"][:, 1]),
+        "background": _Paints(lambda b: b["background"][:, 1]),
+    }
+    truth = torch.stack([s["target"][1] for s in data])
+    same = bench.dynamics_scores(models, data, truth, batch_size=1)
+    assert same["embedded"]["mse"] == same["embedded"]["gmsd"] == 0
+    for row in same["methods"].values():
+        assert abs(row["mse"] - row["mse_to_embedded"]) < 1e-12
+    assert same["methods"]["background"]["mse"] > 0
+    bare = torch.stack([s["background"][1] for s in data])
+    other = bench.dynamics_scores(models, data, bare, batch_size=1)
+    back = other["methods"]["background"]
+    assert abs(other["embedded"]["mse"] - back["mse"]) < 1e-7 and back["mse_to_embedded"] == 0
+    assert abs(other["methods"]["truth"]["mse_to_embedded"] - back["mse"]) < 1e-7
+    try:
+        bench.dynamics_scores(models, data, bare[:1])
+    except Exception as exc:  # one image for two samples
+        assert "1 embedded images for 2 samples" in str(exc)
+    else:
+        raise AssertionError("a short stack of embedded images was taken")
+
+
+def test_on_an_embedded_ground_truth_the_embedded_render_is_the_ground_truth(smoke_project):
+    """The smoke preset's target is embedded (no dynamics of its own): the benchmark's embedded
+    render of a test motion, from the test set's cameras, is the test set's ground truth."""
+    import json
+
+    run = subprocess.run(
+        [sys.executable, str(BENCH), str(smoke_project), "--measure", "dynamics", "--json",
+         "--motion", _an_evaluated_motion(smoke_project)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["measure"] == "dynamics" and set(out["methods"]) >= {"ours"}
+    assert out["embedded"]["mse"] < 1e-6 and out["embedded"]["gms deficit"] < 1e-3
+    for row in out["methods"].values():
+        assert abs(row["mse"] - row["mse_to_embedded"]) < 1e-5
+
+
+def _an_evaluated_motion(project: Path) -> str:
+    """A motion with a test set in ``project``."""
+    return sorted(p.name for p in (project / "testset").iterdir() if p.is_dir())[0]

@@ -132,15 +132,7 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     over ``TierConfig.floor_frames``) and their crossings of the layer beneath.
     ``sheet.png`` shows the proxy and the target on the body (and the embedded target between
     them, with tiers)."""
-    from core.sim.embed import (
-        FRAME_SMOOTHING_M,
-        SMOOTHING_M,
-        BodyContact,
-        ContactSettings,
-        drive,
-        load_embedding,
-        strain_stats,
-    )
+    from core.sim.embed import FRAME_SMOOTHING_M, SMOOTHING_M, ContactSettings, strain_stats
 
     target_file = project.path("garment", "target.obj")
     proxy_file = project.path("proxy", "positions.obj")
@@ -163,16 +155,10 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
 
     def work(out: Path) -> list[str]:
         target, _ = load_mesh(target_file)
-        proxy, _ = load_mesh(proxy_file)
         cache = load_cache(proxy_cache)
         motion = load_project_motion(project, motion_name)
-        top = float(proxy.vertices[:, 1].max())
-        ends, radii = simulation_colliders(
-            config.body, motion, top, sim_config(config).arm_colliders
-        )
-        contact = BodyContact(ends, radii) if config.target_contact else None
         start = time.perf_counter()
-        positions = drive(load_embedding(embedding_file), cache.positions, contact)
+        positions, ends, radii = embedded_target(project, config, motion_name)
         rows = [("proxy", cache.positions, cache.faces)]
         extra = {}
         if tiered:
@@ -223,6 +209,35 @@ def _embed_target(project: Project, config: PipelineConfig, motion_name: str, lo
     inputs = [target_file, proxy_file, embedding_file, proxy_cache]
     project.run_stage(stage, params, inputs, work)
     return project.path(stage, "cache.npz")
+
+
+def embedded_target(
+    project: Project, config: PipelineConfig, motion_name: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The detailed target carried by the proxy's simulation of ``motion_name``, every piece
+    embedded (no motion of its own; kept out of the body's capsules with
+    ``config.target_contact``): what ``target_mode="embed"`` writes, and what ``"tiers"``
+    simulates the hanging pieces on.
+
+    Returns positions (T, V, 3) float, and the capsules the simulation collides with: ends
+    (T, K, 2, 3) and radii (K,) (:func:`core.body.colliders.simulation_colliders`). Needs the
+    binding (``embedding/``, made if missing) and ``sim/MOTION-proxy``.
+    """
+    from core.sim.embed import BodyContact, drive, load_embedding
+
+    embedding_file = stage_embedding(project, config)
+    proxy, _ = load_mesh(project.path("proxy", "positions.obj"))
+    cache_file = project.path(f"sim/{motion_name}-proxy", "cache.npz")
+    if not cache_file.is_file():
+        raise InputError(
+            f"no simulation of {motion_name}'s proxy: run the simulate stage", cache_file
+        )
+    cache = load_cache(cache_file)
+    motion = load_project_motion(project, motion_name)
+    top = float(proxy.vertices[:, 1].max())
+    ends, radii = simulation_colliders(config.body, motion, top, sim_config(config).arm_colliders)
+    contact = BodyContact(ends, radii) if config.target_contact else None
+    return drive(load_embedding(embedding_file), cache.positions, contact), ends, radii
 
 
 def _simulate_tiers(embedded, target: Mesh, shape, ends, radii, fps: float, log):
