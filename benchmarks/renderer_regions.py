@@ -43,7 +43,9 @@ truth is rendered, and scores that image against the ground truth by the report'
 garment-region measures: its MSE is how much the tiers' own motion changes the image. Beside
 it, each method's garment-region MSE against the ground truth and against that embedded image:
 a method nearer the embedded image than the ground truth draws the tiers where the proxy
-carries them, and misses their motion of their own.
+carries them, and misses their motion of their own. ``--sheet FILE`` also writes a PNG of
+:data:`SHEET_SAMPLES` samples spread over the motion: the ground truth, the embedded image and
+each method's render, a row each.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ import torch
 
 from core.errors import InputError
 from core.project import Project
+from core.shading import write_png
 from pipeline.config import project_config, renderer_validation_motion
 from training.baselines import load_for_evaluation
 from training.dataset import GarmentDataset
@@ -87,6 +90,8 @@ GMS_CATEGORIES = ("edge, on the proxy", "flat, on the proxy", "edge, off the pro
 BLUR_SIGMAS = (0.7, 1.0, 1.5)
 #: The measures of ``--measure blur``: the report's garment-region figures.
 BLUR_MEASURES = {"gmsd": gmsd, "gms deficit": gms_deficit, "detail": detail_ratio, "mse": mse}
+#: Samples (spread evenly over the motion) in ``--measure dynamics --sheet``'s picture.
+SHEET_SAMPLES = 4
 #: Gradient magnitude (Prewitt, of the luma in [0, 1]) above which a ground-truth pixel is an edge:
 #: a step of 0.15 in luma across the 3 px filter (a tier's shaded rim against the red).
 EDGE_GRADIENT = 0.05
@@ -280,6 +285,28 @@ def dynamics_scores(models: dict, data, embedded: torch.Tensor, batch_size: int 
     }
 
 
+def dynamics_sheet(models: dict, data, embedded: torch.Tensor, samples: int = SHEET_SAMPLES):
+    """(H', W', 3) uint8: ``samples`` of ``data`` spread evenly over it, a column each; a row
+    for the ground truth, one for the embedded images ``embedded`` (N, 3, H, W) and one per
+    method (:func:`core.shading.contact_sheet`)."""
+    import numpy as np
+
+    from core.shading import contact_sheet
+
+    picks = sorted({round(i * (len(data) - 1) / max(samples - 1, 1)) for i in range(samples)})
+    batch = torch.utils.data.default_collate([data[i] for i in picks])
+    with torch.no_grad():
+        rows = {"ground truth": batch["target"][:, 1], "embedded": embedded[picks]}
+        rows.update({n: m.render(batch).float().clamp(0, 1) for n, m in models.items()})
+
+    def tile(image: torch.Tensor) -> np.ndarray:
+        return (image.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+
+    tiles = [tile(image) for images in rows.values() for image in images]
+    labels = [name for name in rows for _ in picks]
+    return contact_sheet(tiles, labels, columns=len(picks))
+
+
 def _mean(chunks: list[torch.Tensor]) -> float:
     """The mean of per-sample values, NaNs (a sample without a garment region) left out."""
     v = torch.cat(chunks)
@@ -298,7 +325,12 @@ def main() -> None:
         "score the renders blurred (blur), or against the target embedded (dynamics)",
     )  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print only JSON")
+    ap.add_argument(
+        "--sheet", metavar="FILE", help="with --measure dynamics: write the samples' picture"
+    )
     args = ap.parse_args()
+    if args.sheet and args.measure != "dynamics":
+        ap.error("--sheet goes with --measure dynamics")
     torch.set_num_threads(1)
     project = Project(args.project)
     try:
@@ -320,7 +352,10 @@ def main() -> None:
         models = {name: load_for_evaluation(path) for name, path in files.items()}
         data = GarmentDataset(project.root, source=args.source, split=motion)
         if args.measure == "dynamics":
-            scores = dynamics_scores(models, data, embedded_images(project, config, data))
+            still = embedded_images(project, config, data)
+            scores = dynamics_scores(models, data, still)
+            if args.sheet:
+                write_png(args.sheet, dynamics_sheet(models, data, still))
         else:
             split = {"mse": split_error, "gms": split_gms, "blur": blur_scores}[args.measure]
             scores = split(models, data)

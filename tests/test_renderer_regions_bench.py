@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from tests.conftest import load_benchmark
@@ -185,6 +186,11 @@ def test_the_dynamics_scores_know_a_still_image_that_is_the_truth_and_one_that_i
     back = other["methods"]["background"]
     assert abs(other["embedded"]["mse"] - back["mse"]) < 1e-7 and back["mse_to_embedded"] == 0
     assert abs(other["methods"]["truth"]["mse_to_embedded"] - back["mse"]) < 1e-7
+    # the picture: a row for the ground truth, one for the embedded image, one per method
+    one = bench.dynamics_sheet({"truth": models["truth"]}, data, bare, samples=2)
+    two = bench.dynamics_sheet(models, data, bare, samples=2)
+    assert one.dtype == two.dtype == np.uint8 and one.shape[2] == 3
+    assert one.shape[1] == two.shape[1] and two.shape[0] > one.shape[0]
     try:
         bench.dynamics_scores(models, data, bare[:1])
     except Exception as exc:  # one image for two samples
