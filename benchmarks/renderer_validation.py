@@ -19,6 +19,14 @@ Joint2Coarse's proxy and on the simulated one (``--keep DIR`` keeps each seed's 
 mean gradient-similarity deficit, detail ratio and SSIM, the full frame's MSE and the flicker
 (means over the samples), per seed and over the seeds.
 
+``--extra-motion NAME`` (repeatable) trains on more than the training motion: beside the data
+set, the samples of NAME, one of Joint2Coarse's training clips (never a validation or test
+motion), rendered as the data set's are (its cameras' stream, views and frame stride) over the
+proxy the method trains on (the clip's simulation, or Joint2Coarse's prediction of it, as the
+training motion's is made). Its target and images are made in the project first when missing
+(``sim/NAME-target/``, ``renderer-extra/NAME/``); every method gets the same samples and
+steps.
+
 The validation motion's target and images are made in the project first when they are missing
 (as ``dng eval`` makes them; a project made before the split gets ``--motion NAME``, one of its
 Joint2Coarse validation motions). The test motions are never scored here: choose on these
@@ -46,11 +54,13 @@ from core.fileio import atomic_path
 from core.project import Project
 from pipeline.config import (
     baseline_config,
+    joint2coarse_splits,
     project_config,
     renderer_config,
     renderer_validation_motion,
 )
-from pipeline.stages.dataset import stage_testset
+from pipeline.stages.dataset import render_samples, stage_testset
+from pipeline.stages.joint2coarse import joint2coarse_prediction
 from pipeline.stages.simulate import stage_simulate
 from training.baselines import KINDS, load_for_evaluation, train_baseline
 from training.dataset import GarmentDataset
@@ -61,6 +71,39 @@ METRICS = (
     "mse_masked", "gmsd_masked", "gms_masked", "detail_masked", "ssim_masked", "mse", "flicker",
 )  # fmt: skip
 SOURCES = {"joint2coarse": "Joint2Coarse's proxy", "sim": "simulated proxy"}
+
+
+def extra_samples(project: Project, config, name: str, log) -> GarmentDataset:
+    """The training samples of ``name``, one of the project's Joint2Coarse training clips,
+    made in the project when missing: its target (``stage_simulate``) and its samples rendered
+    as the data set's (:func:`pipeline.stages.dataset.render_samples`: the training cameras'
+    stream, ``views_per_frame``, ``frame_stride``) into ``renderer-extra/NAME/``; over the
+    proxy ``config.renderer_source`` names (Joint2Coarse's prediction of the clip is made as the
+    training motion's, strain-limited)."""
+    if name not in joint2coarse_splits(config)["train"]:
+        raise InputError(
+            f"--extra-motion {name!r} is not one of Joint2Coarse's training clips (a renderer "
+            "never trains on a validation or test motion)"
+        )
+    stage_simulate(project, config, name, "target", log)
+    folder = Path("renderer-extra") / name
+    out = project.root / folder
+    if not (out / "samples.json").is_file():
+        tmp = out.with_name(f".{name}.partial")
+        shutil.rmtree(tmp, ignore_errors=True)
+        (tmp / "samples").mkdir(parents=True)
+        render_samples(
+            project, config, name, tmp, seed=(config.seed,), views=config.views_per_frame,
+            stride=config.frame_stride, desc=f"ground truth {name}",
+        )  # fmt: skip
+        shutil.rmtree(out, ignore_errors=True)
+        tmp.rename(out)
+    positions = None
+    if config.renderer_source == "joint2coarse":
+        positions = joint2coarse_prediction(project, name)
+    return GarmentDataset(
+        project.root, source=config.renderer_source, folder=folder, proxy_positions=positions
+    )
 
 
 def main() -> None:
@@ -77,6 +120,10 @@ def main() -> None:
     ap.add_argument("--device", default="cpu", help="cpu or cuda[:i] (training; scored on the CPU)")
     ap.add_argument("--workers", type=int, default=0, help="data loader processes")
     ap.add_argument("--keep", metavar="DIR", help="keep each seed's model file in DIR")
+    ap.add_argument(
+        "--extra-motion", action="append", default=[], metavar="NAME",
+        help="also train on this Joint2Coarse training clip's samples (repeatable)",
+    )  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print only JSON")
     args = ap.parse_args()
     if args.steps is not None and args.steps < 1:
@@ -115,6 +162,12 @@ def main() -> None:
     else:
         config = replace(config, baseline_overrides={**config.baseline_overrides, **changes})
     data = GarmentDataset(project.root, source=config.renderer_source)
+    try:
+        extra = [extra_samples(project, config, name, log) for name in args.extra_motion]
+    except InputError as exc:
+        ap.exit(2, f"renderer_validation: {exc}\n")
+    if extra:
+        data = torch.utils.data.ConcatDataset([data, *extra])
     scored = {
         src: GarmentDataset(project.root, source=src, split=validation.name) for src in SOURCES
     }
@@ -155,7 +208,8 @@ def main() -> None:
         for src in SOURCES
     }
     out = {
-        "method": args.method, "changes": changes, "source": config.renderer_source,
+        "method": args.method, "changes": changes, "extra_motions": args.extra_motion,
+        "samples": len(data), "source": config.renderer_source,
         "motion": validation.name, "device": args.device,
         "config": cfg.to_dict(), "runs": runs, "mean_over_seeds": mean,
     }  # fmt: skip
@@ -164,7 +218,9 @@ def main() -> None:
         return
     print(
         f"{args.method} on {validation.name} (validation), trained over the proxy "
-        f"'{config.renderer_source}', settings changed: {changes or 'none'}"
+        f"'{config.renderer_source}', settings changed: {changes or 'none'}; "
+        f"{len(data)} training samples"
+        + (f" (with {', '.join(args.extra_motion)})" if args.extra_motion else "")
     )
     for run in runs + [{"seed": "all", "figures": mean}]:
         for src, f in run["figures"].items():

@@ -85,3 +85,26 @@ def test_a_project_without_a_validation_motion_is_told_what_to_give(smoke_projec
     assert run.returncode == 2 and "is not one of the validation motions" in run.stderr
     run = _run(str(tmp_path / "nowhere"), "--method", "dnr")
     assert run.returncode == 2 and "not a garment project" in run.stderr
+
+
+def test_an_extra_training_motion_adds_its_samples_and_a_test_motion_is_refused(
+    smoke_project, tmp_path
+):
+    project = tmp_path / "project"
+    shutil.copytree(smoke_project, project, symlinks=True)
+    run = _run(
+        str(project), "--method", "dnr", "--steps", "2", "--extra-motion", "circle-walk", "--json"
+    )
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    index = json.loads((project / "renderer-extra" / "circle-walk" / "samples.json").read_text())
+    own = json.loads((project / "dataset" / "samples.json").read_text())
+    assert index["motion"] == "circle-walk" and out["extra_motions"] == ["circle-walk"]
+    assert out["samples"] == len(own["samples"]) + len(index["samples"]) > len(own["samples"])
+    # the clip's cameras are the training set's stream, views and stride
+    assert {s["view"] for s in index["samples"]} == {s["view"] for s in own["samples"]}
+    run = _run(str(project), "--method", "dnr", "--steps", "2", "--extra-motion", "twirl")
+    assert (
+        run.returncode == 2 and "'twirl' is not one of Joint2Coarse's training clips" in run.stderr
+    )
+    assert not (project / "renderer-extra" / "twirl").exists()

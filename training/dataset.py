@@ -105,6 +105,9 @@ class GarmentDataset:
     features : the motion-feature settings (sigma, frame offsets)
     split : None for the training set (``dataset/``), or a test motion's name for its
         evaluation set from unseen cameras (``testset/NAME/``, made by ``stage_testset``)
+    folder : None, or another folder of samples in the same layout, relative to the project
+        (what ``benchmarks/renderer_validation.py --extra-motion`` trains on beside
+        ``dataset/``); it takes the place of ``split``
     proxy_positions : None, or (T, Vs, 3) float seam-free proxy vertices for every frame of the
         motion, rendered instead of the ``source``'s cache (which then only names them): what
         ``dng bench placement`` uses to render proxies between the simulated one and
@@ -126,12 +129,15 @@ class GarmentDataset:
         proxy_positions: np.ndarray | None = None,
         motion_per_vertex: bool = False,
         threads: int = 0,
+        folder: str | Path | None = None,
     ):
         from core.motion.load import load_motion
         from training.joint2coarse import joint2coarse_inputs
 
         self.root = Path(project_root)
         self.folder = self.root / "dataset" if split is None else self.root / "testset" / split
+        if folder is not None:
+            self.folder = self.root / folder
         index_path = self.folder / "samples.json"
         if not index_path.is_file():
             stage = "dataset" if split is None else "testset"

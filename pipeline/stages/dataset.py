@@ -92,7 +92,7 @@ def stage_dataset(project: Project, config: PipelineConfig, log: Log = quiet) ->
     }
 
     def work(out: Path) -> list[str]:
-        samples = _render_samples(
+        samples = render_samples(
             project, config, train, out, seed=(config.seed,), views=config.views_per_frame,
             stride=config.frame_stride, desc="ground truth",
         )  # fmt: skip
@@ -103,7 +103,7 @@ def stage_dataset(project: Project, config: PipelineConfig, log: Log = quiet) ->
     return project.stage_dir("dataset")
 
 
-def _render_samples(
+def render_samples(
     project: Project,
     config: PipelineConfig,
     motion_name: str,
@@ -202,7 +202,7 @@ def stage_testset(
     }
 
     def work(out: Path) -> list[str]:
-        samples = _render_samples(
+        samples = render_samples(
             project, config, motion_name, out, seed=(config.seed, stream), views=config.test_views,
             stride=config.test_stride, desc=f"ground truth {motion_name}",
         )  # fmt: skip

@@ -325,3 +325,23 @@ def _side_by_side(path: Path, reference, predicted: np.ndarray, body, motion) ->
             tiles.append(gt.image)
             labels.append(f"{label} f{f}")
     write_png(path, contact_sheet(tiles, labels, columns=len(frames)))
+
+
+def joint2coarse_prediction(project: Project, motion_name: str) -> np.ndarray:
+    """The project's Joint2Coarse prediction of one of its motions, made as the stage makes the
+    training motion's (strain-limited, not pushed out of the body): (T, Vs, 3) float32 seam-free
+    proxy vertices. Needs the ``joint2coarse`` stage's model."""
+    from training.joint2coarse import (
+        joint2coarse_inputs,
+        load_model,
+        predict_proxy,
+        prediction_stretch_limit,
+    )
+
+    model = project.path("joint2coarse", "joint2coarse.pt")
+    if not model.is_file():
+        raise InputError("no Joint2Coarse model: run the joint2coarse stage first", model)
+    proxy = load_mesh(project.path("proxy", "positions.obj"))[0]
+    joints, root_rot = joint2coarse_inputs(load_project_motion(project, motion_name))
+    stretch = prediction_stretch_limit(proxy.vertices, proxy.faces)
+    return predict_proxy(load_model(model), joints, root_rot, source=motion_name, stretch=stretch)
